@@ -1,0 +1,4 @@
+#include "commands.hpp"
+namespace cf::cli {
+void add_commands(CLI::App&) {}
+}
