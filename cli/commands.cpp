@@ -1,4 +1,28 @@
 #include "commands.hpp"
+
+#include <iostream>
+
+#include "cortexfuse/core/error.hpp"
+
 namespace cf::cli {
-void add_commands(CLI::App&) {}
+
+int guarded(const char* command, const std::function<int()>& body) {
+    try {
+        return body();
+    } catch (const cf::InputError& e) {
+        std::cerr << "cortexfuse " << command << ": error: " << e.what() << "\n";
+        return 1;
+    } catch (const cf::Cancelled&) {
+        std::cerr << "cortexfuse " << command << ": cancelled\n";
+        return 2;
+    } catch (const std::exception& e) {
+        std::cerr << "cortexfuse " << command << ": error: " << e.what() << "\n";
+        return 1;
+    }
 }
+
+void add_commands(CLI::App& app) {
+    (void)app;  // each add_<name>(app) line is added when its command lands
+}
+
+}  // namespace cf::cli

@@ -1,7 +1,19 @@
 #pragma once
+// One function per subcommand, each in its own cmd_<name>.cpp; commands.cpp calls them all.
 #include <CLI/CLI.hpp>
 
 namespace cf::cli {
 /// Registers every subcommand on `app`.
 void add_commands(CLI::App& app);
+
+void add_register(CLI::App& app);
+void add_render(CLI::App& app);
+void add_phantom(CLI::App& app);
+void add_evaluate(CLI::App& app);
+void add_bench(CLI::App& app);
+void add_skullstrip(CLI::App& app);
+
+/// Runs `body`, turning cf::InputError and other exceptions into one line on stderr and exit 1
+/// (2 for cf::Cancelled). Every command's callback goes through it.
+int guarded(const char* command, const std::function<int()>& body);
 }  // namespace cf::cli
