@@ -16,4 +16,8 @@ void add_skullstrip(CLI::App& app);
 /// Runs `body`, turning cf::InputError and other exceptions into one line on stderr and exit 1
 /// (2 for cf::Cancelled). Every command's callback goes through it.
 int guarded(const char* command, const std::function<int()>& body);
+/// A subcommand callback: runs `body` guarded and throws CLI::RuntimeError(rc) when rc != 0.
+inline void run_guarded(const char* command, const std::function<int()>& body) {
+    if (const int rc = guarded(command, body)) throw CLI::RuntimeError(rc);
+}
 }  // namespace cf::cli

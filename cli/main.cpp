@@ -11,6 +11,8 @@ int main(int argc, char** argv) {
     cf::cli::add_commands(app);
     try {
         app.parse(argc, argv);
+    } catch (const CLI::RuntimeError& e) {
+        return e.get_exit_code();  // a command failed; it already printed its one line
     } catch (const CLI::ParseError& e) {
         return app.exit(e);
     }
