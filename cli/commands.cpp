@@ -22,7 +22,10 @@ int guarded(const char* command, const std::function<int()>& body) {
 }
 
 void add_commands(CLI::App& app) {
-    (void)app;  // each add_<name>(app) line is added when its command lands
+    add_register(app);
+    add_render(app);
+    add_skullstrip(app);
+    add_phantom(app);
 }
 
 }  // namespace cf::cli

@@ -1,6 +1,7 @@
 #include "cortexfuse/core/pose.hpp"
 
 #include <cmath>
+#include <stdexcept>
 
 namespace cf {
 
@@ -42,6 +43,33 @@ PoseParams params_between(const Pose& T0, const Pose& T, const Eigen::Vector3d& 
     const auto e = euler_xyz_deg(R);
     const Eigen::Vector3d t = M.topRightCorner<3, 1>() - (pivot - R * pivot);
     return {e[0], e[1], e[2], t.x(), t.y(), t.z()};
+}
+
+Pose look_at(const Eigen::Vector3d& eye, const Eigen::Vector3d& target, const Eigen::Vector3d& up) {
+    const Eigen::Vector3d z = (target - eye).normalized();          // optical axis
+    const Eigen::Vector3d x = (-up).cross(z).normalized();          // image right: y (down) x z
+    const Eigen::Vector3d y = z.cross(x);
+    Eigen::Matrix3d R;  // rows: camera axes in world
+    R.row(0) = x;
+    R.row(1) = y;
+    R.row(2) = z;
+    Pose T = Pose::Identity();
+    T.topLeftCorner<3, 3>() = R;
+    T.topRightCorner<3, 1>() = -R * eye;
+    return T;
+}
+
+Pose standard_view(const std::string& side, const Eigen::Vector3d& target, double distance_mm) {
+    // LPS: +x left, +y posterior, +z superior.
+    Eigen::Vector3d dir, up(0, 0, 1);
+    if (side == "left") dir = {1, 0, 0};
+    else if (side == "right") dir = {-1, 0, 0};
+    else if (side == "anterior") dir = {0, -1, 0};
+    else if (side == "posterior") dir = {0, 1, 0};
+    else if (side == "superior") { dir = {0, 0, 1}; up = {0, -1, 0}; }
+    else if (side == "inferior") { dir = {0, 0, -1}; up = {0, -1, 0}; }
+    else throw std::invalid_argument("unknown view \"" + side + "\" (left, right, anterior, posterior, superior, inferior)");
+    return look_at(target + dir * distance_mm, target, up);
 }
 
 PoseDelta pose_delta(const Pose& a, const Pose& b, const Eigen::Vector3d& pivot_world_mm) {

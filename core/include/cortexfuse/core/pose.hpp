@@ -4,6 +4,7 @@
 // rotations turn the scene about the target region, not about the camera centre.
 #include <Eigen/Geometry>
 #include <array>
+#include <string>
 
 #include "cortexfuse/core/camera.hpp"
 
@@ -23,6 +24,12 @@ PoseParams params_between(const Pose& T0, const Pose& T, const Eigen::Vector3d& 
 
 /// Rotation angle in degrees and translation in mm of the relative motion T1^-1 * T0 ... as
 /// seen in the camera frame about a pivot.
+/// A camera at `eye_world_mm` looking at `target_world_mm`, image up towards `up_world`.
+Pose look_at(const Eigen::Vector3d& eye_world_mm, const Eigen::Vector3d& target_world_mm, const Eigen::Vector3d& up_world);
+/// Named views around a point: "left", "right", "anterior", "posterior", "superior",
+/// "inferior" (the side of the patient the camera is on), at `distance_mm`.
+Pose standard_view(const std::string& side, const Eigen::Vector3d& target_world_mm, double distance_mm);
+
 struct PoseDelta {
     double angle_deg = 0;
     double translation_mm = 0;

@@ -1,0 +1,25 @@
+#pragma once
+// Initial alignment from 2D-3D landmark pairs.
+#include <string>
+#include <vector>
+
+#include "cortexfuse/core/camera.hpp"
+#include "cortexfuse/core/case.hpp"
+
+namespace cf {
+
+struct LandmarkFit {
+    Pose T_camera_from_world = Pose::Identity();
+    double rms_px = 0;            // reprojection RMS over all pairs
+    std::vector<int> inliers;     // indices used (all, unless RANSAC dropped some)
+    std::string method;           // "pnp", "pnp-ransac", "orthographic"
+};
+
+/// OpenCV solvePnP (SQPnP, refined by Levenberg-Marquardt); RANSAC from 6 pairs on.
+/// Throws InputError when no pose puts the points in front of the camera.
+LandmarkFit fit_pose_pnp(const std::vector<Landmark>& lms, const Intrinsics& K);
+/// The seed's scaled-orthographic variant (affine camera, then orthonormalised), for comparison.
+LandmarkFit fit_pose_orthographic(const std::vector<Landmark>& lms, const Intrinsics& K);
+double reprojection_rms_px(const std::vector<Landmark>& lms, const Intrinsics& K, const Pose& T);
+
+}  // namespace cf

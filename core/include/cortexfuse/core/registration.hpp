@@ -1,0 +1,143 @@
+#pragma once
+// The 3D-2D registration: landmark-initialised, intensity-based. The volume is ray-cast from
+// the current pose, compared with the photo by NMI inside the ROI, and the pose is optimised by
+// the seed's multi-stage Downhill Simplex. Every stage's parameters are data (saved with the
+// result), every stage reports progress, can be cancelled, and is timed.
+#include <memory>
+#include <nlohmann/json.hpp>
+#include <opencv2/core.hpp>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include "cortexfuse/core/camera.hpp"
+#include "cortexfuse/core/case.hpp"
+#include "cortexfuse/core/pose.hpp"
+#include "cortexfuse/core/progress.hpp"
+#include "cortexfuse/core/renderer.hpp"
+#include "cortexfuse/core/roi.hpp"
+#include "cortexfuse/core/volume.hpp"
+
+namespace cf {
+
+/// One simplex search at one blur level and image size.
+struct StageParams {
+    std::string name;
+    double fwhm_mm = 4;        // Gaussian blur of photo and rendering, FWHM at the cortex
+    double step_mm = 2;        // initial simplex step for translations
+    double step_deg = 2;       // ... and for rotations
+    int render_width_px = 190; // working image width (height follows the aspect)
+    int max_evaluations = 120;
+    double xtol_mm = 0.1;      // stop when the simplex is smaller than this
+    double xtol_deg = 0.1;
+};
+
+struct RegistrationParams {
+    std::string transfer_function = "surface_white";  // render style: a preset name
+    /// Photo channel compared with the rendering: "grey", "green", "blue_minus_half_red" (hides vessels).
+    std::string photo_channel = "blue_minus_half_red";
+    std::string metric = "nmi";
+    int bins = 32;
+    bool mask_glare = true;          // drop specular glare, gauze and drapes from the similarity mask
+    /// Soft prior: penalty weight * max(0, rms - rms_landmark - tolerance)^2, rms in pixels at
+    /// 375 px width. Holds depth and tilt, which a single photo barely constrains. 0 disables.
+    double landmark_prior_weight = 0.002;
+    double landmark_prior_tolerance_px = 1.0;
+    double sample_distance_mm = 1.0;
+    /// The seed's subspaces: starting offsets (rx, ry, rz deg, tx, ty, tz mm) about the pivot,
+    /// each searched independently through `search_stages`.
+    std::vector<PoseParams> starts = {{0, 0, 0, 0, 0, 0}};
+    std::vector<StageParams> search_stages;
+    int keep_best = 1;  // candidates carried into the final stages
+    std::vector<StageParams> final_stages;
+
+    static RegistrationParams defaults();
+    /// The seed's original schedule (FWHM 8 -> 2 mm, steps 10 mm / 10 deg, final 3 mm / 3 deg).
+    static RegistrationParams seed_schedule();
+    /// Throws InputError(context, ...) on bad values.
+    void validate(const std::string& context) const;
+};
+
+nlohmann::json to_json(const RegistrationParams& p);
+RegistrationParams registration_params_from_json(const nlohmann::json& j, const std::string& context);
+
+struct StageReport {
+    std::string name;
+    int start = 0;
+    StageParams params;
+    double best_similarity = 0;
+    double best_cost = 0;
+    int evaluations = 0;
+    double seconds = 0;
+};
+
+struct TracePoint {
+    int evaluation;
+    int stage;  // index into RegistrationResult::stages
+    double similarity;
+    double cost;
+};
+
+struct RegistrationResult {
+    Pose T_camera_from_world = Pose::Identity();
+    Pose initial_T_camera_from_world = Pose::Identity();
+    std::string initial_method;  // "pnp", "pnp-ransac", "initial_pose"
+    double initial_landmark_rms_px = 0, final_landmark_rms_px = 0;
+    double similarity = 0;        // final metric value (NMI by default)
+    double initial_similarity = 0;
+    int evaluations = 0;
+    double seconds = 0;
+    std::vector<StageReport> stages;
+    std::vector<TracePoint> trace;  // every evaluation, for the convergence plot
+    RegistrationParams params;
+    Eigen::Vector3d pivot_world_mm = Eigen::Vector3d::Zero();
+};
+
+nlohmann::json result_to_json(const RegistrationResult& r);
+
+/// What the photo side of a registration needs.
+struct PhotoInput {
+    cv::Mat photo_bgr;       // 8-bit, any size with the camera's aspect ratio
+    Intrinsics camera;       // for the camera's own width x height
+    std::vector<Landmark> landmarks;
+    std::optional<Roi> roi;
+    std::optional<Pose> initial_pose;  // used instead of the landmark fit when given
+};
+
+/// A registration engine for one volume: prepares the renderer once, then runs any number of
+/// registrations (the evaluation reuses it). Thread contract: one run() at a time.
+class Registration {
+public:
+    /// `volume` and `brain_mask` are borrowed only during construction.
+    Registration(const Volume& volume, const LabelVolume& brain_mask, RegistrationParams params);
+    ~Registration();
+    RegistrationResult run(const PhotoInput& in, const Progress* progress = nullptr);
+    const RegistrationParams& params() const { return params_; }
+    /// The renderer used for the similarity (registration style), e.g. for depth lookups.
+    Renderer& renderer() { return *renderer_; }
+
+private:
+    RegistrationParams params_;
+    std::unique_ptr<Renderer> renderer_;
+};
+
+/// A case folder loaded and checked, every error naming its file: the volume, the brain mask
+/// (read, resampled onto the volume grid if needed, or computed by skull stripping) and the photo.
+struct LoadedCase {
+    CaseSpec spec;
+    Volume volume;
+    LabelVolume mask;
+    bool mask_computed = false;  // true when skull stripping made it
+    PhotoInput photo;
+};
+LoadedCase load_case(const std::filesystem::path& dir, const Progress* progress = nullptr);
+
+/// The preprocessed photo channel in [0,1] and its similarity mask at a working size.
+struct PhotoChannel {
+    cv::Mat channel;  // CV_32F
+    cv::Mat valid;    // CV_8U, 255 where pixels count
+};
+PhotoChannel photo_channel(const cv::Mat& photo_bgr_working, const std::string& channel, bool mask_glare,
+                           const cv::Mat& roi_mask);
+
+}  // namespace cf

@@ -1,0 +1,52 @@
+#pragma once
+// The renderer interface: one for the CPU ray caster here, one for the EGL/GLSL backend.
+// A renderer owns a prepared copy of the volume (quantised, with an empty-space map) and
+// renders it from a pinhole camera pose. Thread contract: one render() at a time per
+// renderer; distinct renderers are independent (the core is re-entrant).
+#include <cstdint>
+#include <memory>
+#include <vector>
+
+#include "cortexfuse/core/camera.hpp"
+#include "cortexfuse/core/transfer_function.hpp"
+#include "cortexfuse/core/volume.hpp"
+
+namespace cf {
+
+struct RenderOptions {
+    double sample_distance_mm = 1.0;     // step along the ray
+    double ambient = 0.2;                // Lambert shading from a headlight at the camera
+    double diffuse = 0.8;
+    bool shading = true;
+    double early_termination_alpha = 0.98;
+    double coverage_alpha = 0.5;          // coverage mask and depth: where opacity reaches this
+    bool want_rgb = true;                 // skip work the caller does not need
+    bool want_depth = true;
+    int threads = 0;                      // 0 = all cores
+};
+
+/// Images, row-major, width*height (rgb: 3 bytes a pixel).
+struct RenderImage {
+    int width = 0, height = 0;
+    std::vector<uint8_t> rgb;
+    std::vector<float> grey;       // luminance of the composited colour, 0..1
+    std::vector<float> depth_mm;   // camera-frame z of the first opaque hit; 0 where none
+    std::vector<uint8_t> coverage; // 1 where accumulated opacity >= coverage_alpha
+};
+
+class Renderer {
+public:
+    virtual ~Renderer() = default;
+    /// Replaces the transfer function without re-preparing the volume.
+    virtual void set_transfer_function(const TransferFunction& tf) = 0;
+    virtual void render(const Intrinsics& K, const Pose& T_camera_from_world, const RenderOptions& opt,
+                        RenderImage& out) = 0;
+    virtual const char* name() const = 0;
+};
+
+/// The CPU ray caster. `volume` is copied (quantised); `mask`, if given (same grid), hides
+/// everything outside it (skull-stripped rendering). Both are borrowed only during the call.
+std::unique_ptr<Renderer> make_cpu_renderer(const Volume& volume, const TransferFunction& tf,
+                                            const LabelVolume* mask = nullptr);
+
+}  // namespace cf

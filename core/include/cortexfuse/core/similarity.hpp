@@ -1,0 +1,41 @@
+#pragma once
+// Image similarity inside a mask: NMI = (H(I) + H(J)) / H(I, J) (the seed's measure), with
+// MI and NCC beside it for comparison. Images are single-channel float in [0, 1].
+#include <cstdint>
+#include <opencv2/core.hpp>
+#include <vector>
+
+namespace cf {
+
+enum class SimilarityMetric { NMI, MI, NCC };
+SimilarityMetric metric_from_name(const std::string& name);
+const char* metric_name(SimilarityMetric m);
+
+/// Joint-histogram similarity with reusable buffers. Not thread-safe: one per thread.
+class Similarity {
+public:
+    explicit Similarity(int bins = 64) { set_bins(bins); }
+    void set_bins(int bins);
+    int bins() const { return bins_; }
+    /// a, b: CV_32F in [0, 1] (values outside are clamped); mask: CV_8U (non-zero counts) or empty.
+    double nmi(const cv::Mat& a, const cv::Mat& b, const cv::Mat& mask);
+    double mi(const cv::Mat& a, const cv::Mat& b, const cv::Mat& mask);
+    double ncc(const cv::Mat& a, const cv::Mat& b, const cv::Mat& mask);
+    double evaluate(SimilarityMetric m, const cv::Mat& a, const cv::Mat& b, const cv::Mat& mask);
+
+private:
+    // Fills joint_ and returns the sample count.
+    size_t joint_histogram(const cv::Mat& a, const cv::Mat& b, const cv::Mat& mask);
+    void entropies(double& ha, double& hb, double& hab) const;
+    int bins_ = 64;
+    std::vector<uint32_t> joint_;          // bins x bins
+    std::vector<uint32_t> scratch_[4];      // interleaved histograms avoid store conflicts
+    size_t n_ = 0;
+};
+
+/// Gaussian blur with a full width at half maximum given in millimetres at `depth_mm`
+/// from a camera of focal length `focal_px`: sigma_px = FWHM / 2.3548 * f / depth.
+void blur_fwhm_mm(const cv::Mat& src, cv::Mat& dst, double fwhm_mm, double focal_px, double depth_mm);
+double fwhm_mm_to_sigma_px(double fwhm_mm, double focal_px, double depth_mm);
+
+}  // namespace cf

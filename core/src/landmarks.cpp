@@ -1,0 +1,126 @@
+#include "cortexfuse/core/landmarks.hpp"
+
+#include <opencv2/calib3d.hpp>
+#include <opencv2/core/eigen.hpp>
+
+#include <cmath>
+
+#include "cortexfuse/core/error.hpp"
+
+namespace cf {
+
+double reprojection_rms_px(const std::vector<Landmark>& lms, const Intrinsics& K, const Pose& T) {
+    if (lms.empty()) return 0;
+    double s = 0;
+    for (const auto& l : lms) {
+        const auto p = project(K, T, l.world_mm);
+        s += p ? (*p - l.pixel).squaredNorm() : 1e8;
+    }
+    return std::sqrt(s / double(lms.size()));
+}
+
+namespace {
+Pose pose_from_rvec(const cv::Mat& rvec, const cv::Mat& tvec) {
+    cv::Mat R;
+    cv::Rodrigues(rvec, R);
+    Pose T = Pose::Identity();
+    for (int r = 0; r < 3; ++r) {
+        for (int c = 0; c < 3; ++c) T(r, c) = R.at<double>(r, c);
+        T(r, 3) = tvec.at<double>(r);
+    }
+    return T;
+}
+
+bool in_front(const std::vector<Landmark>& lms, const Pose& T) {
+    for (const auto& l : lms)
+        if ((T.topLeftCorner<3, 3>() * l.world_mm + T.topRightCorner<3, 1>()).z() <= 0) return false;
+    return true;
+}
+}  // namespace
+
+LandmarkFit fit_pose_pnp(const std::vector<Landmark>& lms, const Intrinsics& K) {
+    if (lms.size() < 4) throw InputError("landmarks", "needs at least 4 pairs for a pose");
+    std::vector<cv::Point3d> obj;
+    std::vector<cv::Point2d> img;
+    for (const auto& l : lms) {
+        obj.emplace_back(l.world_mm.x(), l.world_mm.y(), l.world_mm.z());
+        img.emplace_back(l.pixel.x(), l.pixel.y());
+    }
+    const cv::Matx33d Kcv(K.fx, 0, K.cx, 0, K.fy, K.cy, 0, 0, 1);
+    const std::vector<double> dist(K.distortion.begin(), K.distortion.end());
+    cv::Mat rvec, tvec;
+    LandmarkFit fit;
+    bool ok = false;
+    if (lms.size() >= 6) {
+        std::vector<int> inl;
+        // 1.5 % of the image width: a few pixels of picking noise pass, a mislabelled pair does not.
+        const double thr = std::max(4.0, 0.015 * K.width);
+        ok = cv::solvePnPRansac(obj, img, Kcv, dist, rvec, tvec, false, 200, float(thr), 0.99, inl, cv::SOLVEPNP_SQPNP);
+        if (ok && inl.size() >= 4) {
+            fit.inliers = inl;
+            fit.method = "pnp-ransac";
+            std::vector<cv::Point3d> o2;
+            std::vector<cv::Point2d> i2;
+            for (int i : inl) {
+                o2.push_back(obj[size_t(i)]);
+                i2.push_back(img[size_t(i)]);
+            }
+            cv::solvePnPRefineLM(o2, i2, Kcv, dist, rvec, tvec);
+        } else {
+            ok = false;
+        }
+    }
+    if (!ok) {
+        ok = cv::solvePnP(obj, img, Kcv, dist, rvec, tvec, false, cv::SOLVEPNP_SQPNP);
+        if (ok) cv::solvePnPRefineLM(obj, img, Kcv, dist, rvec, tvec);
+        fit.method = "pnp";
+        fit.inliers.clear();
+        for (size_t i = 0; i < lms.size(); ++i) fit.inliers.push_back(int(i));
+    }
+    if (!ok) throw InputError("landmarks", "no camera pose fits the landmark pairs");
+    fit.T_camera_from_world = pose_from_rvec(rvec, tvec);
+    if (!in_front(lms, fit.T_camera_from_world)) throw InputError("landmarks", "the fitted pose puts landmarks behind the camera; check the pairs");
+    fit.rms_px = reprojection_rms_px(lms, K, fit.T_camera_from_world);
+    return fit;
+}
+
+LandmarkFit fit_pose_orthographic(const std::vector<Landmark>& lms, const Intrinsics& K) {
+    // u - cx = s * fx/f (r1 . X + tx) ... with a scaled orthographic camera: [u', v'] = M [X; 1].
+    const int n = int(lms.size());
+    if (n < 4) throw InputError("landmarks", "needs at least 4 pairs for a pose");
+    Eigen::MatrixXd A(n, 4);
+    Eigen::VectorXd bu(n), bv(n);
+    for (int i = 0; i < n; ++i) {
+        A.row(i) << lms[size_t(i)].world_mm.transpose(), 1.0;
+        bu(i) = (lms[size_t(i)].pixel.x() - K.cx) / K.fx;
+        bv(i) = (lms[size_t(i)].pixel.y() - K.cy) / K.fy;
+    }
+    const Eigen::Vector4d m1 = A.colPivHouseholderQr().solve(bu);
+    const Eigen::Vector4d m2 = A.colPivHouseholderQr().solve(bv);
+    Eigen::Vector3d r1 = m1.head<3>(), r2 = m2.head<3>();
+    const double s = 0.5 * (r1.norm() + r2.norm());  // 1 / depth
+    if (!(s > 1e-9)) throw InputError("landmarks", "orthographic fit degenerate");
+    Eigen::Matrix3d R;
+    R.row(0) = r1 / s;
+    R.row(1) = r2 / s;
+    R.row(2) = R.row(0).cross(R.row(1));
+    Pose T = Pose::Identity();
+    T.topLeftCorner<3, 3>() = R;
+    const double tz = 1.0 / s;
+    T(0, 3) = m1(3) / s;
+    T(1, 3) = m2(3) / s;
+    // The affine model's depth is that of the points' centroid; shift so the centroid sits at tz.
+    Eigen::Vector3d c = Eigen::Vector3d::Zero();
+    for (const auto& l : lms) c += l.world_mm;
+    c /= n;
+    T = orthonormalize(T);
+    T(2, 3) = tz - (T.topLeftCorner<3, 3>().row(2) * c)(0);
+    LandmarkFit fit;
+    fit.T_camera_from_world = T;
+    fit.method = "orthographic";
+    for (int i = 0; i < n; ++i) fit.inliers.push_back(i);
+    fit.rms_px = reprojection_rms_px(lms, K, T);
+    return fit;
+}
+
+}  // namespace cf

@@ -1,0 +1,275 @@
+// The CPU ray caster: perspective rays from intrinsics and pose, trilinear sampling of a
+// 16-bit quantised copy of the volume, front-to-back compositing, Lambert shading from a
+// headlight, early ray termination and empty-space skipping over 8^3 bricks. Each pixel
+// is computed independently, so the output does not depend on the thread count.
+#include <tbb/blocked_range.h>
+#include <tbb/parallel_for.h>
+#include <tbb/task_arena.h>
+
+#include <algorithm>
+#include <cmath>
+#include <limits>
+
+#include "cortexfuse/core/renderer.hpp"
+
+namespace cf {
+namespace {
+
+constexpr int kBrick = 8;      // brick edge in voxels for empty-space skipping
+constexpr int kLutSize = 4096; // entries of the baked transfer function
+
+class CpuRenderer final : public Renderer {
+public:
+    CpuRenderer(const Volume& v, const TransferFunction& tf, const LabelVolume* mask) : geom_(v.geom) {
+        const auto range = robust_range(v, mask);
+        lo_ = range[0];
+        hi_ = range[1];
+        // Volume range for the table: values above the robust max saturate, which is what a
+        // normalized transfer function wants anyway.
+        const auto& d = geom_.dims;
+        q_.resize(geom_.voxel_count());
+        const double s = (kLutSize - 1) / (hi_ - lo_);
+        for (size_t i = 0; i < q_.size(); ++i) {
+            double x = (double(v.voxels[i]) - lo_) * s;
+            if (mask && !mask->voxels[i]) x = 0;
+            q_[i] = uint16_t(std::clamp(x, 0.0, double(kLutSize - 1)));
+        }
+        // Brick min/max including a one-voxel apron, since trilinear samples reach it.
+        nb_ = {(d[0] + kBrick - 1) / kBrick, (d[1] + kBrick - 1) / kBrick, (d[2] + kBrick - 1) / kBrick};
+        brick_min_.assign(size_t(nb_[0]) * nb_[1] * nb_[2], uint16_t(kLutSize - 1));
+        brick_max_.assign(brick_min_.size(), 0);
+        tbb::parallel_for(0, nb_[2], [&](int bz) {
+            for (int by = 0; by < nb_[1]; ++by)
+                for (int bx = 0; bx < nb_[0]; ++bx) {
+                    uint16_t mn = kLutSize - 1, mx = 0;
+                    for (int k = std::max(0, bz * kBrick - 1); k <= std::min(d[2] - 1, (bz + 1) * kBrick); ++k)
+                        for (int j = std::max(0, by * kBrick - 1); j <= std::min(d[1] - 1, (by + 1) * kBrick); ++j) {
+                            const uint16_t* row = q_.data() + geom_.linear(0, j, k);
+                            for (int i = std::max(0, bx * kBrick - 1); i <= std::min(d[0] - 1, (bx + 1) * kBrick); ++i) {
+                                mn = std::min(mn, row[i]);
+                                mx = std::max(mx, row[i]);
+                            }
+                        }
+                    const size_t b = (size_t(bz) * nb_[1] + by) * nb_[0] + bx;
+                    brick_min_[b] = mn;
+                    brick_max_[b] = mx;
+                }
+        });
+        set_transfer_function(tf);
+        // Index-space geometry.
+        index_from_world_ = geom_.index_from_world().matrix().cast<float>();
+        world_from_index_linear_ = geom_.world_from_index().linear().cast<float>();
+    }
+
+    void set_transfer_function(const TransferFunction& tf) override {
+        baked_ = bake(tf, lo_, hi_, kLutSize);
+        // Prefix maximum of opacity lets a brick be tested in O(1): visible iff any entry in
+        // [min, max] has opacity > 0. A sparse table would do; a max over the span is cheap enough.
+        std::vector<float> op(kLutSize);
+        for (int i = 0; i < kLutSize; ++i) op[size_t(i)] = baked_.rgba[size_t(i)][3];
+        brick_visible_.assign(brick_min_.size(), 0);
+        // Range-max via a sparse table over the LUT (log levels).
+        const int levels = 13;
+        std::vector<std::vector<float>> st(levels, std::vector<float>(kLutSize));
+        st[0] = op;
+        for (int l = 1; l < levels; ++l)
+            for (int i = 0; i + (1 << l) <= kLutSize; ++i)
+                st[size_t(l)][size_t(i)] = std::max(st[size_t(l - 1)][size_t(i)], st[size_t(l - 1)][size_t(i + (1 << (l - 1)))]);
+        for (size_t b = 0; b < brick_min_.size(); ++b) {
+            const int a = brick_min_[b], c = brick_max_[b];
+            if (a > c) continue;
+            const int len = c - a + 1;
+            const int l = 31 - __builtin_clz(unsigned(len));
+            const float m = std::max(st[size_t(l)][size_t(a)], st[size_t(l)][size_t(c - (1 << l) + 1)]);
+            brick_visible_[b] = m > 0.f;
+        }
+        // Gradient modulation in quantised units per voxel.
+        grad_scale_ = float((hi_ - lo_) / (kLutSize - 1));
+    }
+
+    const char* name() const override { return "cpu"; }
+
+    void render(const Intrinsics& K, const Pose& T, const RenderOptions& opt, RenderImage& out) override {
+        if (rays_.size() != size_t(K.width) * K.height || K.fx != rays_K_.fx || K.fy != rays_K_.fy || K.cx != rays_K_.cx ||
+            K.cy != rays_K_.cy || K.distortion != rays_K_.distortion || K.width != rays_K_.width) {
+            rays_ = pixel_rays(K);
+            rays_K_ = K;
+        }
+        out.width = K.width;
+        out.height = K.height;
+        const size_t n = size_t(K.width) * K.height;
+        out.grey.resize(n);
+        out.coverage.resize(n);
+        if (opt.want_rgb) out.rgb.resize(n * 3); else out.rgb.clear();
+        if (opt.want_depth) out.depth_mm.resize(n); else out.depth_mm.clear();
+
+        const Eigen::Matrix4d Tw = T.inverse();  // world_from_camera
+        Frame f;
+        f.R_world_from_camera = Tw.topLeftCorner<3, 3>().cast<float>();
+        f.cam_index = (index_from_world_ * Tw.topRightCorner<3, 1>().cast<float>().homogeneous()).head<3>();
+        f.cam_z_axis_world = T.block<1, 3>(2, 0).cast<float>();  // row 2 of R: camera z in world
+        f.cam_t_z = float(T(2, 3));
+        f.cam_world = Tw.topRightCorner<3, 1>().cast<float>();
+        const int w = K.width;
+        auto body = [&](const tbb::blocked_range<int>& rows) {
+            for (int v = rows.begin(); v < rows.end(); ++v)
+                for (int u = 0; u < w; ++u) cast(f, size_t(v) * w + u, opt, out);
+        };
+        if (opt.threads > 0) {
+            tbb::task_arena arena(opt.threads);
+            arena.execute([&] { tbb::parallel_for(tbb::blocked_range<int>(0, K.height, 4), body); });
+        } else {
+            tbb::parallel_for(tbb::blocked_range<int>(0, K.height, 4), body);
+        }
+    }
+
+private:
+    struct Frame {
+        Eigen::Matrix3f R_world_from_camera;
+        Eigen::Vector3f cam_index;
+        Eigen::Vector3f cam_world;
+        Eigen::Vector3f cam_z_axis_world;
+        float cam_t_z;
+    };
+
+    // Trilinear sample of the quantised volume at index-space p (must be inside [0, d-1)).
+    inline float sample(float x, float y, float z) const {
+        const int i = int(x), j = int(y), k = int(z);
+        const float fx = x - float(i), fy = y - float(j), fz = z - float(k);
+        const size_t sy = size_t(geom_.dims[0]), sz = sy * size_t(geom_.dims[1]);
+        const uint16_t* p = q_.data() + size_t(k) * sz + size_t(j) * sy + size_t(i);
+        const float c00 = float(p[0]) + fx * (float(p[1]) - float(p[0]));
+        const float c10 = float(p[sy]) + fx * (float(p[sy + 1]) - float(p[sy]));
+        const float c01 = float(p[sz]) + fx * (float(p[sz + 1]) - float(p[sz]));
+        const float c11 = float(p[sz + sy]) + fx * (float(p[sz + sy + 1]) - float(p[sz + sy]));
+        const float c0 = c00 + fy * (c10 - c00), c1 = c01 + fy * (c11 - c01);
+        return c0 + fz * (c1 - c0);
+    }
+
+    inline float sample_clamped(float x, float y, float z) const {
+        const auto& d = geom_.dims;
+        x = std::clamp(x, 0.f, float(d[0] - 1) - 1e-3f);
+        y = std::clamp(y, 0.f, float(d[1] - 1) - 1e-3f);
+        z = std::clamp(z, 0.f, float(d[2] - 1) - 1e-3f);
+        return sample(x, y, z);
+    }
+
+    void cast(const Frame& f, size_t px, const RenderOptions& opt, RenderImage& out) const {
+        const Eigen::Vector3f dir_cam = rays_[px].normalized();
+        const Eigen::Vector3f dir_world = f.R_world_from_camera * dir_cam;
+        const Eigen::Vector3f dir_index = index_from_world_.topLeftCorner<3, 3>() * dir_world;  // per mm
+        const Eigen::Vector3f& o = f.cam_index;
+        // Clip the ray against the volume box [0, d-1) in index space.
+        float t0 = 0.f, t1 = std::numeric_limits<float>::max();
+        for (int a = 0; a < 3; ++a) {
+            const float hi = float(geom_.dims[a] - 1) - 1e-3f;
+            if (std::abs(dir_index[a]) < 1e-12f) {
+                if (o[a] < 0.f || o[a] > hi) { t1 = -1.f; break; }
+                continue;
+            }
+            float ta = (0.f - o[a]) / dir_index[a], tb = (hi - o[a]) / dir_index[a];
+            if (ta > tb) std::swap(ta, tb);
+            t0 = std::max(t0, ta);
+            t1 = std::min(t1, tb);
+        }
+        float r = 0, g = 0, b = 0, alpha = 0, depth = 0;
+        bool hit = false;
+        const float step = float(opt.sample_distance_mm);
+        const float term = float(opt.early_termination_alpha);
+        const float cov = float(opt.coverage_alpha);
+        if (t1 > t0) {
+            // Samples on a fixed lattice t = n * step so that moving the camera slightly does
+            // not make the sampling jump around (a registration loop moves it every frame).
+            float t = std::ceil(t0 / step) * step;
+            const float lut_scale = 1.f;
+            const bool grad_op = baked_.uses_gradient();
+            while (t <= t1) {
+                const float x = o.x() + t * dir_index.x(), y = o.y() + t * dir_index.y(), z = o.z() + t * dir_index.z();
+                const int bx = int(x) / kBrick, by = int(y) / kBrick, bz = int(z) / kBrick;
+                if (!brick_visible_[(size_t(bz) * nb_[1] + by) * nb_[0] + bx]) {
+                    // Jump to where the ray leaves this brick, on the sample lattice.
+                    float texit = t1;
+                    const float p[3] = {x, y, z};
+                    const int bi[3] = {bx, by, bz};
+                    for (int a = 0; a < 3; ++a) {
+                        const float da = dir_index[a];
+                        if (da > 1e-12f) texit = std::min(texit, t + (float((bi[a] + 1) * kBrick) - p[a]) / da);
+                        else if (da < -1e-12f) texit = std::min(texit, t + (float(bi[a] * kBrick) - p[a]) / da);
+                    }
+                    const float tn = std::ceil(texit / step + 1e-4f) * step;
+                    t = std::max(tn, t + step);
+                    continue;
+                }
+                const float s = sample(x, y, z) * lut_scale;
+                const int li = int(s + 0.5f);
+                const auto& e = baked_.rgba[size_t(li)];
+                float a = e[3];
+                if (a > 0.f) {
+                    // Opacity per mm -> per step.
+                    float shade = 1.f;
+                    if (opt.shading || grad_op) {
+                        const float gx = sample_clamped(x + 1, y, z) - sample_clamped(x - 1, y, z);
+                        const float gy = sample_clamped(x, y + 1, z) - sample_clamped(x, y - 1, z);
+                        const float gz = sample_clamped(x, y, z + 1) - sample_clamped(x, y, z - 1);
+                        // Index-space gradient to world: g_world = A^-T g_index (A = world_from_index linear).
+                        const Eigen::Vector3f gi(gx * 0.5f, gy * 0.5f, gz * 0.5f);
+                        const Eigen::Vector3f gw = index_from_world_.topLeftCorner<3, 3>().transpose() * gi;
+                        const float gn = gw.norm();
+                        if (grad_op) a *= baked_.gradient_factor(gn * grad_scale_);
+                        if (opt.shading) {
+                            const float lambert = gn > 1e-6f ? std::abs(gw.dot(dir_world)) / gn : 0.f;
+                            shade = float(opt.ambient) + float(opt.diffuse) * lambert;
+                        }
+                    }
+                    const float a_step = a >= 1.f ? 1.f : 1.f - std::pow(1.f - a, step);
+                    const float wgt = (1.f - alpha) * a_step;
+                    r += wgt * e[0] * shade;
+                    g += wgt * e[1] * shade;
+                    b += wgt * e[2] * shade;
+                    alpha += wgt;
+                    if (!hit && alpha >= cov) {
+                        hit = true;
+                        const Eigen::Vector3f pw = f.cam_world + t * dir_world;
+                        depth = f.cam_z_axis_world.dot(pw) + f.cam_t_z;
+                    }
+                    if (alpha >= term) break;
+                }
+                t += step;
+            }
+        }
+        r = std::min(r, 1.f);
+        g = std::min(g, 1.f);
+        b = std::min(b, 1.f);
+        out.grey[px] = 0.299f * r + 0.587f * g + 0.114f * b;
+        out.coverage[px] = hit ? 1 : 0;
+        if (!out.rgb.empty()) {
+            out.rgb[px * 3 + 0] = uint8_t(r * 255.f + 0.5f);
+            out.rgb[px * 3 + 1] = uint8_t(g * 255.f + 0.5f);
+            out.rgb[px * 3 + 2] = uint8_t(b * 255.f + 0.5f);
+        }
+        if (!out.depth_mm.empty()) out.depth_mm[px] = hit ? depth : 0.f;
+    }
+
+    VolumeGeometry geom_;
+    double lo_ = 0, hi_ = 1;
+    std::vector<uint16_t> q_;
+    std::array<int, 3> nb_{};
+    std::vector<uint16_t> brick_min_, brick_max_;
+    std::vector<uint8_t> brick_visible_;
+    BakedTransferFunction baked_;
+    float grad_scale_ = 1.f;
+    Eigen::Matrix4f index_from_world_;
+    Eigen::Matrix3f world_from_index_linear_;
+    std::vector<Eigen::Vector3f> rays_;
+    Intrinsics rays_K_;
+};
+
+}  // namespace
+
+std::unique_ptr<Renderer> make_cpu_renderer(const Volume& volume, const TransferFunction& tf, const LabelVolume* mask) {
+    if (mask && !mask->geom.same_grid(volume.geom))
+        throw std::invalid_argument("make_cpu_renderer: mask is not on the volume's grid");
+    return std::make_unique<CpuRenderer>(volume, tf, mask);
+}
+
+}  // namespace cf

@@ -1,0 +1,478 @@
+#include "cortexfuse/core/registration.hpp"
+
+#include <opencv2/imgproc.hpp>
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <map>
+#include <numeric>
+
+#include "cortexfuse/core/error.hpp"
+#include "cortexfuse/core/landmarks.hpp"
+#include "cortexfuse/core/optimizer.hpp"
+#include "cortexfuse/core/similarity.hpp"
+
+namespace cf {
+
+using nlohmann::json;
+using Clock = std::chrono::steady_clock;
+
+namespace {
+double seconds_since(Clock::time_point t0) { return std::chrono::duration<double>(Clock::now() - t0).count(); }
+constexpr int kPriorReferenceWidthPx = 375;  // prior tolerances are given in pixels at this width
+constexpr int kPivotWidthPx = 190;           // the depth under the ROI needs no more
+}  // namespace
+
+// ---------------------------------------------------------------- parameters as data
+
+RegistrationParams RegistrationParams::defaults() {
+    RegistrationParams p;
+    p.starts = {{0, 0, 0, 0, 0, 0}};
+    p.search_stages = {
+        {"coarse-fwhm8", 8.0, 4.0, 4.0, 128, 80, 0.2, 0.2},
+        {"coarse-fwhm4", 4.0, 2.0, 2.0, 190, 80, 0.1, 0.1},
+    };
+    p.keep_best = 1;
+    p.final_stages = {
+        {"final-fwhm2", 2.0, 1.0, 1.0, 190, 100, 0.05, 0.05},
+    };
+    return p;
+}
+
+RegistrationParams RegistrationParams::seed_schedule() {
+    RegistrationParams p;
+    p.transfer_function = "cortex_t1";
+    p.photo_channel = "grey";
+    p.landmark_prior_weight = 0;
+    p.bins = 64;
+    // Subspaces: the landmark pose and out-of-plane tilts on either side.
+    p.starts = {{0, 0, 0, 0, 0, 0}, {10, 0, 0, 0, 0, 0}, {-10, 0, 0, 0, 0, 0}, {0, 10, 0, 0, 0, 0}, {0, -10, 0, 0, 0, 0}};
+    p.search_stages = {
+        {"fwhm8", 8.0, 10.0, 10.0, 190, 150, 0.2, 0.2},
+        {"fwhm4", 4.0, 10.0, 10.0, 190, 150, 0.2, 0.2},
+        {"fwhm2", 2.0, 10.0, 10.0, 375, 150, 0.1, 0.1},
+    };
+    p.keep_best = 2;
+    p.final_stages = {{"final-3mm3deg", 2.0, 3.0, 3.0, 375, 200, 0.05, 0.05}};
+    return p;
+}
+
+void RegistrationParams::validate(const std::string& ctx) const {
+    auto bad = [&](const std::string& m) { throw InputError(ctx, m); };
+    if (bins < 4 || bins > 256) bad("bins must be 4..256");
+    if (photo_channel != "grey" && photo_channel != "green" && photo_channel != "blue_minus_half_red")
+        bad("photo_channel must be grey, green or blue_minus_half_red");
+    metric_from_name(metric);
+    if (!(landmark_prior_weight >= 0) || !(landmark_prior_tolerance_px >= 0)) bad("landmark prior must be >= 0");
+    if (!(sample_distance_mm >= 0.1 && sample_distance_mm <= 5)) bad("sample_distance_mm must be 0.1..5");
+    if (starts.empty()) bad("at least one start");
+    if (search_stages.empty() && final_stages.empty()) bad("at least one stage");
+    if (keep_best < 1) bad("keep_best must be >= 1");
+    for (const auto* list : {&search_stages, &final_stages})
+        for (const auto& s : *list) {
+            if (!(s.fwhm_mm >= 0 && s.fwhm_mm <= 50)) bad("stage " + s.name + ": fwhm_mm must be 0..50");
+            if (!(s.step_mm > 0 && s.step_mm <= 50) || !(s.step_deg > 0 && s.step_deg <= 45)) bad("stage " + s.name + ": steps out of range");
+            if (s.render_width_px < 32 || s.render_width_px > 4000) bad("stage " + s.name + ": render_width_px must be 32..4000");
+            if (s.max_evaluations < 1 || s.max_evaluations > 100000) bad("stage " + s.name + ": max_evaluations out of range");
+            if (!(s.xtol_mm > 0) || !(s.xtol_deg > 0)) bad("stage " + s.name + ": tolerances must be > 0");
+        }
+    for (const auto& s : starts)
+        for (double v : s)
+            if (!std::isfinite(v) || std::abs(v) > 90) bad("start offsets must be finite and within +-90");
+}
+
+namespace {
+json stage_json(const StageParams& s) {
+    return {{"name", s.name}, {"fwhm_mm", s.fwhm_mm}, {"step_mm", s.step_mm}, {"step_deg", s.step_deg},
+            {"render_width_px", s.render_width_px}, {"max_evaluations", s.max_evaluations},
+            {"xtol_mm", s.xtol_mm}, {"xtol_deg", s.xtol_deg}};
+}
+StageParams stage_from(const json& j) {
+    StageParams s;
+    s.name = j.value("name", std::string("stage"));
+    s.fwhm_mm = j.value("fwhm_mm", s.fwhm_mm);
+    s.step_mm = j.value("step_mm", s.step_mm);
+    s.step_deg = j.value("step_deg", s.step_deg);
+    s.render_width_px = j.value("render_width_px", s.render_width_px);
+    s.max_evaluations = j.value("max_evaluations", s.max_evaluations);
+    s.xtol_mm = j.value("xtol_mm", s.xtol_mm);
+    s.xtol_deg = j.value("xtol_deg", s.xtol_deg);
+    return s;
+}
+}  // namespace
+
+json to_json(const RegistrationParams& p) {
+    json j;
+    j["transfer_function"] = p.transfer_function;
+    j["photo_channel"] = p.photo_channel;
+    j["metric"] = p.metric;
+    j["bins"] = p.bins;
+    j["mask_glare"] = p.mask_glare;
+    j["landmark_prior_weight"] = p.landmark_prior_weight;
+    j["landmark_prior_tolerance_px"] = p.landmark_prior_tolerance_px;
+    j["sample_distance_mm"] = p.sample_distance_mm;
+    j["starts"] = p.starts;
+    j["keep_best"] = p.keep_best;
+    j["search_stages"] = json::array();
+    for (const auto& s : p.search_stages) j["search_stages"].push_back(stage_json(s));
+    j["final_stages"] = json::array();
+    for (const auto& s : p.final_stages) j["final_stages"].push_back(stage_json(s));
+    return j;
+}
+
+RegistrationParams registration_params_from_json(const json& j, const std::string& ctx) {
+    RegistrationParams p = RegistrationParams::defaults();
+    try {
+        if (!j.is_object()) throw InputError(ctx, "registration parameters must be a JSON object");
+        p.transfer_function = j.value("transfer_function", p.transfer_function);
+        p.photo_channel = j.value("photo_channel", p.photo_channel);
+        p.metric = j.value("metric", p.metric);
+        p.bins = j.value("bins", p.bins);
+        p.mask_glare = j.value("mask_glare", p.mask_glare);
+        p.landmark_prior_weight = j.value("landmark_prior_weight", p.landmark_prior_weight);
+        p.landmark_prior_tolerance_px = j.value("landmark_prior_tolerance_px", p.landmark_prior_tolerance_px);
+        p.sample_distance_mm = j.value("sample_distance_mm", p.sample_distance_mm);
+        if (j.contains("starts")) p.starts = j.at("starts").get<std::vector<PoseParams>>();
+        p.keep_best = j.value("keep_best", p.keep_best);
+        if (j.contains("search_stages")) {
+            p.search_stages.clear();
+            for (const auto& s : j.at("search_stages")) p.search_stages.push_back(stage_from(s));
+        }
+        if (j.contains("final_stages")) {
+            p.final_stages.clear();
+            for (const auto& s : j.at("final_stages")) p.final_stages.push_back(stage_from(s));
+        }
+    } catch (const json::exception& e) {
+        throw InputError(ctx, std::string("malformed registration parameters: ") + e.what());
+    }
+    p.validate(ctx);
+    return p;
+}
+
+json result_to_json(const RegistrationResult& r) {
+    json j;
+    j["format"] = "cortexfuse-result/1";
+    j["T_camera_from_world"] = pose_to_json(r.T_camera_from_world);
+    j["initial_T_camera_from_world"] = pose_to_json(r.initial_T_camera_from_world);
+    j["initial_method"] = r.initial_method;
+    j[r.params.metric] = r.similarity;
+    j["nmi"] = r.params.metric == "nmi" ? r.similarity : j.value("nmi", r.similarity);
+    j["initial_similarity"] = r.initial_similarity;
+    j["landmark_rms_px"] = {{"initial", r.initial_landmark_rms_px}, {"final", r.final_landmark_rms_px}};
+    j["evaluations"] = r.evaluations;
+    j["seconds"] = r.seconds;
+    j["pivot_world_mm"] = {r.pivot_world_mm.x(), r.pivot_world_mm.y(), r.pivot_world_mm.z()};
+    j["stages"] = json::array();
+    for (const auto& s : r.stages)
+        j["stages"].push_back({{"name", s.name}, {"start", s.start}, {"fwhm_mm", s.params.fwhm_mm},
+                               {"step_mm", s.params.step_mm}, {"step_deg", s.params.step_deg},
+                               {"render_width_px", s.params.render_width_px}, {"best_" + r.params.metric, s.best_similarity},
+                               {"best_nmi", s.best_similarity}, {"best_cost", s.best_cost},
+                               {"evaluations", s.evaluations}, {"seconds", s.seconds}});
+    j["parameters"] = to_json(r.params);
+    return j;
+}
+
+// ---------------------------------------------------------------- photo preprocessing
+
+PhotoChannel photo_channel(const cv::Mat& bgr, const std::string& channel, bool mask_glare, const cv::Mat& roi) {
+    CV_Assert(bgr.type() == CV_8UC3);
+    PhotoChannel out;
+    out.channel.create(bgr.size(), CV_32F);
+    out.valid = roi.empty() ? cv::Mat(bgr.size(), CV_8U, cv::Scalar(255)) : roi.clone();
+    const int mode = channel == "grey" ? 0 : channel == "green" ? 1 : 2;
+    for (int y = 0; y < bgr.rows; ++y) {
+        const cv::Vec3b* p = bgr.ptr<cv::Vec3b>(y);
+        float* c = out.channel.ptr<float>(y);
+        uint8_t* v = out.valid.ptr<uint8_t>(y);
+        for (int x = 0; x < bgr.cols; ++x) {
+            const float b = p[x][0] / 255.f, g = p[x][1] / 255.f, r = p[x][2] / 255.f;
+            c[x] = mode == 0 ? 0.299f * r + 0.587f * g + 0.114f * b : mode == 1 ? g : b - 0.5f * r;
+            if (mask_glare && v[x]) {
+                const float mx = std::max({r, g, b}), mn = std::min({r, g, b});
+                const float sat = mx > 1e-6f ? (mx - mn) / mx : 0.f;
+                // Specular glare and gauze: bright and nearly colourless. Drapes, instruments:
+                // green or blue dominant, which exposed tissue never is.
+                const bool glare = mx > 0.8f && sat < 0.25f;
+                const bool not_tissue = g > r * 1.05f || b > r * 1.05f;
+                if (glare || not_tissue) v[x] = 0;
+            }
+        }
+    }
+    if (mask_glare) {
+        // Glare has soft halos: grow the excluded spots a little.
+        cv::Mat excluded;
+        cv::bitwise_not(out.valid, excluded);
+        if (!roi.empty()) cv::bitwise_and(excluded, roi, excluded);
+        cv::dilate(excluded, excluded, cv::getStructuringElement(cv::MORPH_ELLIPSE, {3, 3}));
+        out.valid.setTo(0, excluded);
+    }
+    // Robust normalisation to [0, 1] over the valid pixels.
+    std::vector<float> vals;
+    for (int y = 0; y < bgr.rows; ++y) {
+        const float* c = out.channel.ptr<float>(y);
+        const uint8_t* v = out.valid.ptr<uint8_t>(y);
+        for (int x = 0; x < bgr.cols; ++x)
+            if (v[x]) vals.push_back(c[x]);
+    }
+    float lo = 0, hi = 1;
+    if (vals.size() > 20) {
+        const size_t a = vals.size() / 100, b = vals.size() - 1 - vals.size() / 100;
+        std::nth_element(vals.begin(), vals.begin() + long(a), vals.end());
+        lo = vals[a];
+        std::nth_element(vals.begin(), vals.begin() + long(b), vals.end());
+        hi = vals[b];
+    }
+    if (hi - lo < 1e-6f) hi = lo + 1e-6f;
+    out.channel = (out.channel - lo) / (hi - lo);
+    cv::min(cv::max(out.channel, 0.0), 1.0, out.channel);
+    return out;
+}
+
+// ---------------------------------------------------------------- the engine
+
+Registration::Registration(const Volume& volume, const LabelVolume& brain_mask, RegistrationParams params)
+    : params_(std::move(params)) {
+    params_.validate("registration parameters");
+    if (!brain_mask.geom.same_grid(volume.geom)) throw InputError("brain mask", "is not on the volume's grid");
+    if (brain_mask.count_nonzero() < 1000) throw InputError("brain mask", "is (nearly) empty");
+    renderer_ = make_cpu_renderer(volume, preset_transfer_function(params_.transfer_function), &brain_mask);
+}
+
+Registration::~Registration() = default;
+
+namespace {
+
+/// Everything one working size needs: camera, photo channel, valid mask.
+struct Level {
+    Intrinsics K;
+    PhotoChannel photo;
+    double scale = 1;  // working px per camera px
+};
+
+}  // namespace
+
+RegistrationResult Registration::run(const PhotoInput& in, const Progress* progress) {
+    const auto t_start = Clock::now();
+    const CancelToken* cancel = progress ? progress->cancel : nullptr;
+    RegistrationResult res;
+    res.params = params_;
+    const Intrinsics& K = in.camera;
+    if (in.photo_bgr.empty() || in.photo_bgr.type() != CV_8UC3) throw InputError("photo", "expected an 8-bit colour image");
+    // A photo of another size than the camera's is resized (same aspect ratio only).
+    const double aspect_photo = double(in.photo_bgr.cols) / in.photo_bgr.rows, aspect_cam = double(K.width) / K.height;
+    if (std::abs(aspect_photo / aspect_cam - 1) > 0.01)
+        throw InputError("photo", "size " + std::to_string(in.photo_bgr.cols) + "x" + std::to_string(in.photo_bgr.rows) +
+                                      " does not match the camera's aspect ratio " + std::to_string(K.width) + "x" + std::to_string(K.height));
+
+    // Initial pose.
+    Pose T0;
+    if (in.initial_pose) {
+        T0 = *in.initial_pose;
+        res.initial_method = "initial_pose";
+    } else {
+        if (in.landmarks.size() < 4) throw InputError("landmarks", "needs at least 4 pairs or an initial pose");
+        const LandmarkFit fit = fit_pose_pnp(in.landmarks, K);
+        T0 = fit.T_camera_from_world;
+        res.initial_method = fit.method;
+    }
+    res.initial_T_camera_from_world = T0;
+    const bool use_prior = params_.landmark_prior_weight > 0 && in.landmarks.size() >= 4;
+    double rms_landmark_fit = 0;
+    if (use_prior) rms_landmark_fit = fit_pose_pnp(in.landmarks, K).rms_px;
+    res.initial_landmark_rms_px = reprojection_rms_px(in.landmarks, K, T0);
+
+    // Working levels, one per distinct width, photo downsampled once each.
+    std::map<int, Level> levels;
+    auto level = [&](int width) -> Level& {
+        auto it = levels.find(width);
+        if (it != levels.end()) return it->second;
+        Level L;
+        const int w = std::min(width, K.width);
+        const int h = std::max(8, int(std::lround(double(K.height) * w / K.width)));
+        L.K = K.resized(w, h);
+        L.scale = double(w) / K.width;
+        cv::Mat small;
+        cv::resize(in.photo_bgr, small, cv::Size(w, h), 0, 0, cv::INTER_AREA);
+        cv::Mat roi = in.roi ? roi_mask(*in.roi, w, h, L.scale) : cv::Mat();
+        L.photo = photo_channel(small, params_.photo_channel, params_.mask_glare, roi);
+        if (cv::countNonZero(L.photo.valid) < 50)
+            throw InputError("photo", "fewer than 50 usable pixels in the ROI at " + std::to_string(w) + " px width (all glare or drapes?)");
+        return levels.emplace(width, std::move(L)).first->second;
+    };
+
+    // Pivot: where the ROI's centre meets the brain surface at T0.
+    RenderOptions ropt;
+    ropt.sample_distance_mm = params_.sample_distance_mm;
+    ropt.want_rgb = false;
+    ropt.want_depth = true;
+    {
+        Level& L = level(kPivotWidthPx);
+        RenderImage img;
+        renderer_->render(L.K, T0, ropt, img);
+        std::vector<float> depths;
+        double su = 0, sv = 0;
+        size_t n = 0;
+        for (int v = 0; v < L.K.height; ++v)
+            for (int u = 0; u < L.K.width; ++u) {
+                const size_t i = size_t(v) * L.K.width + u;
+                if (!L.photo.valid.at<uint8_t>(v, u) && in.roi) continue;
+                su += u;
+                sv += v;
+                ++n;
+                if (img.coverage[i]) depths.push_back(img.depth_mm[i]);
+            }
+        Eigen::Vector3d pivot_cam;
+        if (depths.size() > 20 && n > 0) {
+            std::nth_element(depths.begin(), depths.begin() + long(depths.size() / 2), depths.end());
+            const double z = depths[depths.size() / 2];
+            pivot_cam = backproject(L.K, Eigen::Vector2d(su / n, sv / n), z);
+        } else if (!in.landmarks.empty()) {
+            Eigen::Vector3d c = Eigen::Vector3d::Zero();
+            for (const auto& l : in.landmarks) c += l.world_mm;
+            c /= double(in.landmarks.size());
+            pivot_cam = T0.topLeftCorner<3, 3>() * c + T0.topRightCorner<3, 1>();
+        } else {
+            throw InputError("initial pose", "the brain is not in view of the camera at the initial pose");
+        }
+        res.pivot_world_mm = T0.inverse().topLeftCorner<3, 3>() * pivot_cam + T0.inverse().topRightCorner<3, 1>();
+    }
+    const Eigen::Vector3d pivot_cam = T0.topLeftCorner<3, 3>() * res.pivot_world_mm + T0.topRightCorner<3, 1>();
+    const double depth_mm = pivot_cam.z();
+
+    Similarity sim(params_.bins);
+    const SimilarityMetric metric = metric_from_name(params_.metric);
+    RenderImage img;
+    cv::Mat rendered, rendered_blur, photo_blur;
+    int total_budget = 0;
+    for (const auto& s : params_.search_stages) total_budget += s.max_evaluations * int(params_.starts.size());
+    for (const auto& s : params_.final_stages) total_budget += s.max_evaluations * params_.keep_best;
+    int evals_done = 0;
+
+    // Similarity of the pose given by params x at a stage (higher is better) and the cost.
+    auto evaluate = [&](const PoseParams& x, const StageParams& st, double& similarity) {
+        Level& L = level(st.render_width_px);
+        const Pose T = apply_params(T0, pivot_cam, x);
+        renderer_->render(L.K, T, ropt, img);
+        rendered = cv::Mat(L.K.height, L.K.width, CV_32F, img.grey.data());
+        blur_fwhm_mm(rendered, rendered_blur, st.fwhm_mm, L.K.fx, depth_mm);
+        similarity = sim.evaluate(metric, rendered_blur, photo_blur, L.photo.valid);
+        double cost = -similarity;
+        if (use_prior) {
+            const double to_ref = double(kPriorReferenceWidthPx) / K.width;
+            const double excess = std::max(0.0, (reprojection_rms_px(in.landmarks, K, T) - rms_landmark_fit) * to_ref -
+                                                    params_.landmark_prior_tolerance_px);
+            cost += params_.landmark_prior_weight * excess * excess;
+        }
+        return cost;
+    };
+
+    auto run_stage = [&](const StageParams& st, int start_index, const PoseParams& x0, double& best_sim) {
+        const auto t0 = Clock::now();
+        Level& L = level(st.render_width_px);
+        blur_fwhm_mm(L.photo.channel, photo_blur, st.fwhm_mm, L.K.fx, depth_mm);
+        StageReport rep;
+        rep.name = st.name;
+        rep.start = start_index;
+        rep.params = st;
+        const int stage_index = int(res.stages.size());
+        double best_seen_sim = -1e300, best_seen_cost = 1e300;
+        auto f = [&](const std::vector<double>& xv) {
+            PoseParams x;
+            std::copy(xv.begin(), xv.end(), x.begin());
+            double s = 0;
+            const double c = evaluate(x, st, s);
+            if (c < best_seen_cost) {
+                best_seen_cost = c;
+                best_seen_sim = s;
+            }
+            ++evals_done;
+            res.trace.push_back({evals_done, stage_index, s, c});
+            if (progress && (evals_done % 10 == 0))
+                (*progress)(st.name, std::min(1.0, double(evals_done) / std::max(1, total_budget)));
+            return c;
+        };
+        SimplexOptions so;
+        so.initial_step = {st.step_deg, st.step_deg, st.step_deg, st.step_mm, st.step_mm, st.step_mm};
+        so.xtol_abs = {st.xtol_deg, st.xtol_deg, st.xtol_deg, st.xtol_mm, st.xtol_mm, st.xtol_mm};
+        so.max_evaluations = st.max_evaluations;
+        so.ftol_abs = 1e-6;
+        const SimplexResult r = nelder_mead(f, std::vector<double>(x0.begin(), x0.end()), so, cancel);
+        rep.best_cost = r.f;
+        rep.best_similarity = best_seen_sim;
+        rep.evaluations = r.evaluations;
+        rep.seconds = seconds_since(t0);
+        res.stages.push_back(rep);
+        best_sim = best_seen_sim;
+        PoseParams out;
+        std::copy(r.x.begin(), r.x.end(), out.begin());
+        return std::make_pair(out, r.f);
+    };
+
+    // Similarity at the start, for the record.
+    {
+        const StageParams& first = !params_.search_stages.empty() ? params_.search_stages.front() : params_.final_stages.front();
+        Level& L = level(first.render_width_px);
+        blur_fwhm_mm(L.photo.channel, photo_blur, first.fwhm_mm, L.K.fx, depth_mm);
+        double s0 = 0;
+        evaluate({0, 0, 0, 0, 0, 0}, first, s0);
+        res.initial_similarity = s0;
+    }
+
+    // Subspace searches: each start runs the multi-scale stages on its own.
+    struct Candidate {
+        PoseParams x;
+        double cost;
+    };
+    std::vector<Candidate> candidates;
+    for (size_t s = 0; s < params_.starts.size(); ++s) {
+        PoseParams x = params_.starts[s];
+        double cost = 0, best_sim = 0;
+        if (params_.search_stages.empty()) {
+            candidates.push_back({x, 0});
+            continue;
+        }
+        for (const auto& st : params_.search_stages) std::tie(x, cost) = run_stage(st, int(s), x, best_sim);
+        candidates.push_back({x, cost});
+    }
+    std::sort(candidates.begin(), candidates.end(), [](auto& a, auto& b) { return a.cost < b.cost; });
+    candidates.resize(std::min<size_t>(candidates.size(), size_t(params_.keep_best)));
+
+    // Final search and re-optimisation of the best few.
+    Candidate best = candidates.front();
+    double best_sim = 0;
+    if (!params_.final_stages.empty()) {
+        best.cost = 1e300;
+        for (size_t c = 0; c < candidates.size(); ++c) {
+            PoseParams x = candidates[c].x;
+            double cost = 0, s = 0;
+            for (const auto& st : params_.final_stages) std::tie(x, cost) = run_stage(st, int(c), x, s);
+            if (cost < best.cost) {
+                best = {x, cost};
+                best_sim = s;
+            }
+        }
+    } else {
+        best_sim = res.stages.empty() ? res.initial_similarity : res.stages.back().best_similarity;
+    }
+
+    res.T_camera_from_world = apply_params(T0, pivot_cam, best.x);
+    // Report the similarity at the final pose at the last stage's level.
+    {
+        const StageParams& last = !params_.final_stages.empty() ? params_.final_stages.back() : params_.search_stages.back();
+        Level& L = level(last.render_width_px);
+        blur_fwhm_mm(L.photo.channel, photo_blur, last.fwhm_mm, L.K.fx, depth_mm);
+        double s = 0;
+        evaluate(best.x, last, s);
+        res.similarity = s;
+        (void)best_sim;
+    }
+    res.final_landmark_rms_px = reprojection_rms_px(in.landmarks, K, res.T_camera_from_world);
+    res.evaluations = evals_done;
+    res.seconds = seconds_since(t_start);
+    if (progress) (*progress)("done", 1.0);
+    return res;
+}
+
+}  // namespace cf

@@ -1,0 +1,138 @@
+#include "cortexfuse/core/similarity.hpp"
+
+#include <opencv2/imgproc.hpp>
+
+#include <cmath>
+#include <stdexcept>
+
+#include "cortexfuse/core/error.hpp"
+
+namespace cf {
+
+SimilarityMetric metric_from_name(const std::string& n) {
+    if (n == "nmi") return SimilarityMetric::NMI;
+    if (n == "mi") return SimilarityMetric::MI;
+    if (n == "ncc") return SimilarityMetric::NCC;
+    throw InputError("metric \"" + n + "\"", "unknown (nmi, mi, ncc)");
+}
+
+const char* metric_name(SimilarityMetric m) {
+    switch (m) {
+        case SimilarityMetric::NMI: return "nmi";
+        case SimilarityMetric::MI: return "mi";
+        case SimilarityMetric::NCC: return "ncc";
+    }
+    return "?";
+}
+
+void Similarity::set_bins(int bins) {
+    if (bins < 2 || bins > 1024) throw std::invalid_argument("Similarity: bins must be 2..1024");
+    bins_ = bins;
+    joint_.assign(size_t(bins) * bins, 0);
+    for (auto& s : scratch_) s.assign(size_t(bins) * bins, 0);
+}
+
+size_t Similarity::joint_histogram(const cv::Mat& a, const cv::Mat& b, const cv::Mat& mask) {
+    CV_Assert(a.type() == CV_32F && b.type() == CV_32F && a.size() == b.size());
+    CV_Assert(mask.empty() || (mask.type() == CV_8U && mask.size() == a.size()));
+    for (auto& s : scratch_) std::fill(s.begin(), s.end(), 0u);
+    const float scale = float(bins_) - 1e-3f;
+    const int B = bins_;
+    size_t count = 0;
+    for (int y = 0; y < a.rows; ++y) {
+        const float* pa = a.ptr<float>(y);
+        const float* pb = b.ptr<float>(y);
+        const uint8_t* pm = mask.empty() ? nullptr : mask.ptr<uint8_t>(y);
+        for (int x = 0; x < a.cols; ++x) {
+            if (pm && !pm[x]) continue;
+            const int ia = int(std::clamp(pa[x], 0.f, 1.f) * scale);
+            const int ib = int(std::clamp(pb[x], 0.f, 1.f) * scale);
+            ++scratch_[count & 3][size_t(ia * B + ib)];
+            ++count;
+        }
+    }
+    for (size_t i = 0; i < joint_.size(); ++i) joint_[i] = scratch_[0][i] + scratch_[1][i] + scratch_[2][i] + scratch_[3][i];
+    n_ = count;
+    return count;
+}
+
+void Similarity::entropies(double& ha, double& hb, double& hab) const {
+    ha = hb = hab = 0;
+    if (n_ == 0) return;
+    const double inv = 1.0 / double(n_);
+    const int B = bins_;
+    std::vector<double> ma(size_t(B), 0.0), mb(size_t(B), 0.0);
+    for (int i = 0; i < B; ++i)
+        for (int j = 0; j < B; ++j) {
+            const uint32_t c = joint_[size_t(i * B + j)];
+            if (!c) continue;
+            const double p = c * inv;
+            hab -= p * std::log(p);
+            ma[size_t(i)] += p;
+            mb[size_t(j)] += p;
+        }
+    for (int i = 0; i < B; ++i) {
+        if (ma[size_t(i)] > 0) ha -= ma[size_t(i)] * std::log(ma[size_t(i)]);
+        if (mb[size_t(i)] > 0) hb -= mb[size_t(i)] * std::log(mb[size_t(i)]);
+    }
+}
+
+double Similarity::nmi(const cv::Mat& a, const cv::Mat& b, const cv::Mat& mask) {
+    if (joint_histogram(a, b, mask) < 2) return 1.0;
+    double ha, hb, hab;
+    entropies(ha, hb, hab);
+    return hab > 0 ? (ha + hb) / hab : 1.0;  // two constant images: no information either way
+}
+
+double Similarity::mi(const cv::Mat& a, const cv::Mat& b, const cv::Mat& mask) {
+    if (joint_histogram(a, b, mask) < 2) return 0.0;
+    double ha, hb, hab;
+    entropies(ha, hb, hab);
+    return ha + hb - hab;
+}
+
+double Similarity::ncc(const cv::Mat& a, const cv::Mat& b, const cv::Mat& mask) {
+    CV_Assert(a.type() == CV_32F && b.type() == CV_32F && a.size() == b.size());
+    double sa = 0, sb = 0, saa = 0, sbb = 0, sab = 0;
+    size_t n = 0;
+    for (int y = 0; y < a.rows; ++y) {
+        const float* pa = a.ptr<float>(y);
+        const float* pb = b.ptr<float>(y);
+        const uint8_t* pm = mask.empty() ? nullptr : mask.ptr<uint8_t>(y);
+        for (int x = 0; x < a.cols; ++x) {
+            if (pm && !pm[x]) continue;
+            const double u = pa[x], v = pb[x];
+            sa += u; sb += v; saa += u * u; sbb += v * v; sab += u * v;
+            ++n;
+        }
+    }
+    if (n < 2) return 0.0;
+    const double ma = sa / n, mb = sb / n;
+    const double va = saa / n - ma * ma, vb = sbb / n - mb * mb;
+    if (va <= 1e-12 || vb <= 1e-12) return 0.0;
+    return (sab / n - ma * mb) / std::sqrt(va * vb);
+}
+
+double Similarity::evaluate(SimilarityMetric m, const cv::Mat& a, const cv::Mat& b, const cv::Mat& mask) {
+    switch (m) {
+        case SimilarityMetric::NMI: return nmi(a, b, mask);
+        case SimilarityMetric::MI: return mi(a, b, mask);
+        case SimilarityMetric::NCC: return ncc(a, b, mask);
+    }
+    return 0;
+}
+
+double fwhm_mm_to_sigma_px(double fwhm_mm, double focal_px, double depth_mm) {
+    return fwhm_mm / (2.0 * std::sqrt(2.0 * std::log(2.0))) * focal_px / std::max(depth_mm, 1e-6);
+}
+
+void blur_fwhm_mm(const cv::Mat& src, cv::Mat& dst, double fwhm_mm, double focal_px, double depth_mm) {
+    const double sigma = fwhm_mm_to_sigma_px(fwhm_mm, focal_px, depth_mm);
+    if (sigma < 0.3) {
+        src.copyTo(dst);
+        return;
+    }
+    cv::GaussianBlur(src, dst, cv::Size(0, 0), sigma, sigma, cv::BORDER_REPLICATE);
+}
+
+}  // namespace cf
