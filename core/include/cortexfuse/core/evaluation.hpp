@@ -1,0 +1,35 @@
+#pragma once
+// Errors of a recovered pose against ground truth (docs/case-format.md): TRE, MRE (the seed's
+// fusion error, cast back onto the brain surface), IPE; and the seed's Table 3.1 protocol.
+#include <random>
+#include <string>
+#include <vector>
+
+#include "cortexfuse/core/case.hpp"
+#include "cortexfuse/core/pose.hpp"
+#include "cortexfuse/core/renderer.hpp"
+
+namespace cf {
+
+struct PoseErrors {
+    double tre_mm = 0;   // mean 3D distance of targets mapped by true and recovered pose
+    double mre_mm = 0;   // mean distance target -> back-cast hit on the brain surface
+    double ipe_px = 0;   // mean image distance of targets projected by both poses
+    double ipe_mm = 0;   // the same at each target's depth
+    int targets = 0;
+    int targets_missed = 0;  // back-cast rays that hit no surface (counted at the ray's closest approach)
+};
+
+/// `surface` renders the brain surface (the registration renderer: first opaque hit = surface).
+PoseErrors pose_errors(const Truth& truth, const Intrinsics& K, const Pose& T_recovered, Renderer& surface,
+                       double sample_distance_mm = 0.5);
+
+/// The first opaque hit along the ray of `pixel` (camera-frame depth), or 0 if none.
+double surface_depth_at(Renderer& surface, const Intrinsics& K, const Pose& T, const Eigen::Vector2d& pixel,
+                        double sample_distance_mm = 0.5);
+
+/// A random misalignment: each rotation uniform in [-max_deg, max_deg], each translation in
+/// [-max_mm, max_mm] (the seed's protocol draws each parameter independently).
+PoseParams random_misalignment(std::mt19937_64& rng, double max_mm, double max_deg);
+
+}  // namespace cf

@@ -1,0 +1,74 @@
+#include "cortexfuse/core/evaluation.hpp"
+
+#include <cmath>
+
+namespace cf {
+
+double surface_depth_at(Renderer& surface, const Intrinsics& K, const Pose& T, const Eigen::Vector2d& pixel,
+                        double sample_distance_mm) {
+    // A one-pixel camera whose pixel (0,0) is `pixel` of K: shifting the principal point keeps
+    // the normalised coordinates, so distortion is honoured too.
+    Intrinsics k1 = K;
+    k1.width = k1.height = 1;
+    k1.cx = K.cx - pixel.x();
+    k1.cy = K.cy - pixel.y();
+    RenderOptions o;
+    o.sample_distance_mm = sample_distance_mm;
+    o.want_rgb = false;
+    o.shading = false;
+    o.threads = 1;
+    RenderImage img;
+    surface.render(k1, T, o, img);
+    return img.coverage[0] ? double(img.depth_mm[0]) : 0.0;
+}
+
+PoseErrors pose_errors(const Truth& truth, const Intrinsics& K, const Pose& Tr, Renderer& surface, double sample_mm) {
+    PoseErrors e;
+    const Pose& Tt = truth.T_camera_from_world;
+    double tre = 0, mre = 0, ipe = 0, ipe_mm = 0;
+    int n = 0;
+    for (const auto& p : truth.targets_world_mm) {
+        const Eigen::Vector3d pt = Tt.topLeftCorner<3, 3>() * p + Tt.topRightCorner<3, 1>();
+        const Eigen::Vector3d pr = Tr.topLeftCorner<3, 3>() * p + Tr.topRightCorner<3, 1>();
+        const auto ut = project_camera(K, pt), ur = project_camera(K, pr);
+        if (!ut) continue;
+        ++n;
+        tre += (pt - pr).norm();
+        const double dpx = ur ? (*ut - *ur).norm() : 1e3;
+        ipe += dpx;
+        ipe_mm += dpx * pt.z() / K.fx;
+        // MRE: the true pixel cast back with the recovered pose onto the surface.
+        const Eigen::Vector3d ray = backproject_ray(K, *ut);
+        const double z = surface_depth_at(surface, K, Tr, *ut, sample_mm);
+        Eigen::Vector3d hit_cam;
+        if (z > 0) {
+            hit_cam = ray * z;
+        } else {
+            // No surface there: take the ray's closest point to the target (a lower bound).
+            ++e.targets_missed;
+            const Eigen::Vector3d d = ray.normalized();
+            hit_cam = d * d.dot(pr);
+        }
+        const Eigen::Matrix4d Tr_inv = Tr.inverse();
+        const Eigen::Vector3d hit_world = Tr_inv.topLeftCorner<3, 3>() * hit_cam + Tr_inv.topRightCorner<3, 1>();
+        mre += (hit_world - p).norm();
+    }
+    e.targets = n;
+    if (n) {
+        e.tre_mm = tre / n;
+        e.mre_mm = mre / n;
+        e.ipe_px = ipe / n;
+        e.ipe_mm = ipe_mm / n;
+    }
+    return e;
+}
+
+PoseParams random_misalignment(std::mt19937_64& rng, double max_mm, double max_deg) {
+    std::uniform_real_distribution<double> U(-1.0, 1.0);
+    PoseParams x;
+    for (int i = 0; i < 3; ++i) x[size_t(i)] = U(rng) * max_deg;
+    for (int i = 3; i < 6; ++i) x[size_t(i)] = U(rng) * max_mm;
+    return x;
+}
+
+}  // namespace cf

@@ -1,0 +1,11 @@
+#!/usr/bin/env bash
+# Every test: the release build and the ASan+UBSan build, each through ctest.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+bash scripts/setup.sh
+bash scripts/build.sh release
+ctest --test-dir build --output-on-failure -j2
+bash scripts/build.sh asan
+# LeakSanitizer: TBB's and ITK's process-lifetime singletons are not leaks of ours.
+ASAN_OPTIONS=detect_leaks=0 UBSAN_OPTIONS=print_stacktrace=1 \
+  ctest --test-dir build-asan --output-on-failure -j2

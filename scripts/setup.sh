@@ -1,0 +1,22 @@
+#!/usr/bin/env bash
+# Installs what CortexFuse needs to build, run and test, from Debian 12's packages.
+# Idempotent: when everything is there it only checks, quickly.
+set -euo pipefail
+PACKAGES=(
+  build-essential cmake ninja-build pkg-config
+  libinsighttoolkit5-dev libvtk9-dev libopencv-dev libeigen3-dev
+  libnlopt-cxx-dev libnlopt-dev libtbb-dev zlib1g-dev
+  nlohmann-json3-dev libcli11-dev libspdlog-dev
+  libgtest-dev libgmock-dev libbenchmark-dev
+  xvfb xauth
+)
+missing=()
+for p in "${PACKAGES[@]}"; do
+  dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing+=("$p")
+done
+if ((${#missing[@]})); then
+  echo "setup: installing ${missing[*]}" >&2
+  SUDO=""; [ "$(id -u)" = 0 ] || SUDO=sudo
+  $SUDO apt-get update -q
+  DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -q --no-install-recommends "${missing[@]}"
+fi
