@@ -1,0 +1,986 @@
+// The phantom generator: pose, craniotomy, procedural surgical appearance, landmarks, ROI
+// and truth for one synthetic case (see phantom.hpp). Writing and batching: phantom_io.cpp.
+#include <opencv2/imgcodecs.hpp>
+#include <opencv2/imgproc.hpp>
+#include <tbb/parallel_for.h>
+
+#include <algorithm>
+#include <cmath>
+#include <numbers>
+#include <random>
+#include <sstream>
+
+#include "cortexfuse/core/error.hpp"
+#include "cortexfuse/core/phantom.hpp"
+#include "cortexfuse/core/pose.hpp"
+
+namespace cf {
+
+void PhantomParams::validate() const {
+    auto bad = [](const std::string& field, const std::string& why) { throw InputError("phantom " + field, why); };
+    auto range2 = [&](const std::string& f, const std::array<double, 2>& r, double lo, double hi) {
+        if (!(r[0] >= lo && r[1] <= hi && r[0] <= r[1]))
+            bad(f, "range [" + std::to_string(r[0]) + ", " + std::to_string(r[1]) + "] must lie within [" +
+                       std::to_string(lo) + ", " + std::to_string(hi) + "]");
+    };
+    auto prob = [&](const std::string& f, double p) {
+        if (!(p >= 0 && p <= 1)) bad(f, "probability " + std::to_string(p) + " must be in [0, 1]");
+    };
+    if (width < 64 || height < 64 || width > 4000 || height > 4000)
+        bad("size", std::to_string(width) + "x" + std::to_string(height) + " out of range (64..4000 each)");
+    if (dslr_width < 64 || dslr_height < 64 || dslr_width > 8000 || dslr_height > 8000)
+        bad("dslr size", "out of range (64..8000 each)");
+    prob("dslr-fraction", dslr_fraction);
+    prob("gauze-prob", gauze_prob);
+    prob("blood-prob", blood_prob);
+    prob("distortion-prob", distortion_prob);
+    prob("png-fraction", png_fraction);
+    range2("distance_mm", distance_mm, 100, 1000);
+    range2("craniotomy_mm", craniotomy_mm, 20, 120);
+    range2("fill_fraction", fill_fraction, 0.2, 1.2);
+    range2("landmark_pixel_sd", landmark_pixel_sd, 0, 20);
+    if (!(max_tilt_deg >= 0 && max_tilt_deg <= 60)) bad("max_tilt_deg", "must be in [0, 60]");
+    if (!(landmark_world_sd_mm >= 0 && landmark_world_sd_mm <= 10)) bad("landmark_world_sd_mm", "must be in [0, 10]");
+    if (landmarks_min < 4 || landmarks_max > 12 || landmarks_min > landmarks_max) bad("landmarks", "count range must lie within 4..12");
+    if (targets_min < 5 || targets_max > 200 || targets_min > targets_max) bad("targets", "count range must lie within 5..200");
+}
+
+namespace {
+
+constexpr double kPi = std::numbers::pi;
+using Vec2 = Eigen::Vector2d;
+using Vec3 = Eigen::Vector3d;
+using Col = Eigen::Array3f;  // linear RGB
+
+// ---------------------------------------------------------------- randomness
+uint64_t splitmix64(uint64_t x) {
+    x += 0x9E3779B97F4A7C15ull;
+    x = (x ^ (x >> 30)) * 0xBF58476D1CE4E5B9ull;
+    x = (x ^ (x >> 27)) * 0x94D049BB133111EBull;
+    return x ^ (x >> 31);
+}
+
+/// Portable draws (not std:: distributions, whose output is implementation-defined).
+struct Rng {
+    std::mt19937_64 g;
+    explicit Rng(uint64_t s) : g(s) {}
+    double uni() { return double(g() >> 11) * 0x1.0p-53; }
+    double uni(double a, double b) { return a + (b - a) * uni(); }
+    double uni(const std::array<double, 2>& r) { return uni(r[0], r[1]); }
+    double normal() {
+        const double u1 = std::max(uni(), 1e-300), u2 = uni();
+        return std::sqrt(-2 * std::log(u1)) * std::cos(2 * kPi * u2);
+    }
+    int integer(int lo, int hi) { return std::min(hi, lo + int(uni() * (hi - lo + 1))); }
+    bool chance(double p) { return uni() < p; }
+    uint32_t u32() { return uint32_t(g() >> 32); }
+};
+
+inline uint32_t hash2(int x, int y, uint32_t s) {
+    uint32_t h = s * 0x9E3779B1u ^ uint32_t(x) * 0x85EBCA77u ^ uint32_t(y) * 0xC2B2AE3Du;
+    h ^= h >> 15;
+    h *= 0x2C1B3C6Du;
+    h ^= h >> 12;
+    h *= 0x297A2D39u;
+    h ^= h >> 15;
+    return h;
+}
+inline float hashf(int x, int y, uint32_t s) { return float(hash2(x, y, s) & 0xFFFFFFu) / float(0xFFFFFF); }
+
+/// Smooth value noise in [0, 1].
+inline float vnoise(float x, float y, uint32_t s) {
+    const float fx0 = std::floor(x), fy0 = std::floor(y);
+    const int xi = int(fx0), yi = int(fy0);
+    float fx = x - fx0, fy = y - fy0;
+    fx = fx * fx * (3 - 2 * fx);
+    fy = fy * fy * (3 - 2 * fy);
+    const float a = hashf(xi, yi, s), b = hashf(xi + 1, yi, s), c = hashf(xi, yi + 1, s), d = hashf(xi + 1, yi + 1, s);
+    return (a + (b - a) * fx) * (1 - fy) + (c + (d - c) * fx) * fy;
+}
+/// Fractal noise in about [0, 1], `oct` octaves starting at frequency 1.
+inline float fbm(float x, float y, uint32_t s, int oct) {
+    float sum = 0, amp = 0.5f, norm = 0;
+    for (int o = 0; o < oct; ++o) {
+        sum += amp * vnoise(x, y, s + uint32_t(o) * 1013u);
+        norm += amp;
+        x = x * 2.03f + 17.1f;
+        y = y * 2.03f - 9.7f;
+        amp *= 0.5f;
+    }
+    return sum / norm;
+}
+
+inline float smoothstep(float e0, float e1, float x) {
+    const float t = std::clamp((x - e0) / (e1 - e0), 0.f, 1.f);
+    return t * t * (3 - 2 * t);
+}
+inline float srgb_to_linear(float c) { return std::pow(std::clamp(c, 0.f, 1.f), 2.2f); }
+inline Col rgb(double r, double g, double b) {
+    return Col(srgb_to_linear(float(r / 255)), srgb_to_linear(float(g / 255)), srgb_to_linear(float(b / 255)));
+}
+inline Col mix(const Col& a, const Col& b, float t) { return a + (b - a) * t; }
+
+/// A colour jittered in brightness and per channel (multiplicative, linear space).
+Col jitter(Rng& r, const Col& c, double bright, double chan) {
+    const float k = float(1 + bright * (2 * r.uni() - 1));
+    Col out = c * k;
+    for (int i = 0; i < 3; ++i) out[i] *= float(1 + chan * (2 * r.uni() - 1));
+    return out;
+}
+
+// ---------------------------------------------------------------- craniotomy geometry
+/// The local head sphere (fitted to the smoothed brain around the craniotomy centre) and
+/// polar coordinates on it: a point's (a, b) in mm is its angular position seen from the
+/// sphere centre times the sphere radius, in the tangent basis (e1, e2) at the centre.
+struct Crani {
+    Vec3 c, n, e1, e2, O;  // centre on the smoothed brain, outward normal, tangents, sphere centre
+    double Rc = 80;        // sphere radius (smoothed brain)
+    // Bone cut radius r(theta) = base ellipse * (1 + harmonics).
+    double R1 = 30, R2 = 25, phi = 0;
+    std::array<double, 5> amp{}, phase{};
+    std::array<double, 4> skin_amp{}, skin_phase{}, drape_amp{}, drape_phase{};
+    double bone_w = 6, skin_w = 20, dura_w = 3;      // ring widths, mm
+    double h_bone = 8, h_skin = 14;                 // heights above the brain sphere, mm
+
+    Vec2 ab(const Vec3& p, double* height = nullptr) const {
+        const Vec3 v = p - O;
+        const double dist = v.norm();
+        if (height) *height = dist - Rc;
+        const Vec3 u = v / std::max(dist, 1e-9);
+        const double cz = u.dot(n);
+        const Vec3 w = u - cz * n;
+        const double sw = w.norm();
+        const double ang = std::atan2(sw, cz);
+        if (sw < 1e-12) return Vec2::Zero();
+        return Rc * ang / sw * Vec2(w.dot(e1), w.dot(e2));
+    }
+    double r_bone(double th) const {
+        const double ct = std::cos(th - phi), st = std::sin(th - phi);
+        double r = R1 * R2 / std::sqrt(R2 * R2 * ct * ct + R1 * R1 * st * st);
+        double k = 1;
+        for (size_t i = 0; i < amp.size(); ++i) k += amp[i] * std::cos(double(i + 2) * th + phase[i]);
+        return r * k;
+    }
+    double r_skin(double th) const {
+        double k = 1;
+        for (size_t i = 0; i < skin_amp.size(); ++i) k += skin_amp[i] * std::cos(double(i + 1) * th + skin_phase[i]);
+        return r_bone(th) + bone_w * k;
+    }
+    double r_drape(double th) const {
+        double k = 1;
+        for (size_t i = 0; i < drape_amp.size(); ++i) k += drape_amp[i] * std::cos(double(i + 1) * th + drape_phase[i]);
+        return r_skin(th) + skin_w * k;
+    }
+    /// Nearest intersection of a ray with the sphere of radius Rc + h; false if missed.
+    bool hit_sphere(const Vec3& C, const Vec3& d, double h, Vec3& q) const {
+        const Vec3 m = C - O;
+        const double R = Rc + h, b = m.dot(d), cc = m.squaredNorm() - R * R, disc = b * b - cc;
+        if (disc < 0) return false;
+        const double s = -b - std::sqrt(disc);
+        if (s <= 0) return false;
+        q = C + s * d;
+        return true;
+    }
+};
+
+// ---------------------------------------------------------------- vessels
+struct VesselPath {
+    std::vector<Vec2> pts;      // mm in (a, b)
+    std::vector<double> radius; // mm
+    int kind = 0;               // 0 vein, 1 artery, 2 small
+};
+
+/// A texture over the craniotomy in (a, b) mm: sulcal depth of the outermost surface,
+/// the triangle seen along the sphere normal (to lift texture points to 3D), vessel layers.
+struct Texture {
+    double E = 60, texel = 0.12;  // half extent, mm per texel
+    int N = 1000;
+    RasterBuffers ortho;          // per texel: triangle + barycentrics
+    cv::Mat sulc;                 // CV_32F sulcal depth, mm (0 where no surface)
+    cv::Mat sulc_blur;            // smoothed, for vessel steering
+    cv::Mat vein, artery, small;  // CV_32F alpha in [0, 1]
+    cv::Mat grad_x, grad_y;       // CV_32F height-map gradient (mm per mm)
+    std::vector<Vec2> bifurcations_ab;
+
+    Vec2 to_tex(const Vec2& ab) const { return (ab + Vec2(E, E)) / texel; }
+    float sample(const cv::Mat& m, const Vec2& ab) const {
+        const Vec2 t = to_tex(ab);
+        const float x = float(t.x()), y = float(t.y());
+        if (x < 0 || y < 0 || x > float(N - 1) || y > float(N - 1)) return 0.f;
+        const int x0 = std::min(int(x), N - 2), y0 = std::min(int(y), N - 2);
+        const float fx = x - float(x0), fy = y - float(y0);
+        const float* r0 = m.ptr<float>(y0);
+        const float* r1 = m.ptr<float>(y0 + 1);
+        return (r0[x0] * (1 - fx) + r0[x0 + 1] * fx) * (1 - fy) + (r1[x0] * (1 - fx) + r1[x0 + 1] * fx) * fy;
+    }
+};
+
+void trace_vessel(Texture& tx, Rng& rng, Vec2 p, Vec2 dir, double radius, int kind, int depth, double max_len_mm,
+                  std::vector<VesselPath>& out) {
+    VesselPath v;
+    v.kind = kind;
+    const double step = 0.4;
+    const double steer = kind == 0 ? 0.6 : (kind == 1 ? 0.35 : 0.0);
+    const double wiggle = kind == 2 ? 0.35 : (kind == 1 ? 0.12 : 0.08);
+    double len = 0, r = radius;
+    dir.normalize();
+    double turn = 0;
+    while (len < max_len_mm && p.norm() < tx.E * 0.98) {
+        v.pts.push_back(p);
+        v.radius.push_back(r);
+        // Steer towards deeper sulci (veins mostly), with momentum and a smooth random turn.
+        const Vec2 t = tx.to_tex(p);
+        const int xi = std::clamp(int(t.x()), 2, tx.N - 3), yi = std::clamp(int(t.y()), 2, tx.N - 3);
+        const float gx = tx.sulc_blur.at<float>(yi, xi + 2) - tx.sulc_blur.at<float>(yi, xi - 2);
+        const float gy = tx.sulc_blur.at<float>(yi + 2, xi) - tx.sulc_blur.at<float>(yi - 2, xi);
+        Vec2 g(gx, gy);
+        if (g.norm() > 1e-6) g = g.normalized() * std::min(1.0, g.norm() * 0.5);
+        turn = 0.85 * turn + wiggle * rng.normal() * 0.5;
+        const double ct = std::cos(turn * 0.3), st = std::sin(turn * 0.3);
+        dir = Vec2(ct * dir.x() - st * dir.y(), st * dir.x() + ct * dir.y());
+        dir = (dir + steer * 0.25 * g).normalized();
+        p += step * dir;
+        len += step;
+        r *= kind == 0 ? 0.9995 : 0.998;
+        // Branches (tributaries of veins, arterial bifurcations).
+        const double pb = kind == 0 ? 0.006 : (kind == 1 ? 0.012 : 0.0);
+        if (depth < 3 && rng.chance(pb) && len > 3 && p.norm() < tx.E * 0.9) {
+            const double side = rng.chance(0.5) ? 1 : -1;
+            const double ang = side * rng.uni(0.5, 1.2);
+            const Vec2 bd(std::cos(ang) * dir.x() - std::sin(ang) * dir.y(), std::sin(ang) * dir.x() + std::cos(ang) * dir.y());
+            const double br = r * rng.uni(0.4, 0.75);
+            if (br > 0.12) tx.bifurcations_ab.push_back(p);
+            if (kind == 1) r *= 0.85;  // a bifurcating artery gets thinner
+            trace_vessel(tx, rng, p, bd, br, kind, depth + 1, max_len_mm * rng.uni(0.3, 0.7), out);
+        }
+        if (r < 0.04) break;
+    }
+    if (v.pts.size() > 2) out.push_back(std::move(v));
+}
+
+void draw_vessels(Texture& tx, const std::vector<VesselPath>& vessels) {
+    cv::Mat layers[3];
+    for (auto& l : layers) l = cv::Mat::zeros(tx.N, tx.N, CV_8U);
+    constexpr int shift = 4;
+    const double sc = double(1 << shift);
+    for (const auto& v : vessels) {
+        cv::Mat& L = layers[v.kind];
+        for (size_t i = 1; i < v.pts.size(); ++i) {
+            const Vec2 a = tx.to_tex(v.pts[i - 1]), b = tx.to_tex(v.pts[i]);
+            const int th = std::max(1, int(std::lround(2 * v.radius[i] / tx.texel)));
+            const double alpha = v.kind == 2 ? std::clamp(v.radius[i] / 0.15, 0.3, 1.0) : 1.0;
+            cv::line(L, cv::Point(int(a.x() * sc), int(a.y() * sc)), cv::Point(int(b.x() * sc), int(b.y() * sc)),
+                     cv::Scalar(255 * alpha), th, cv::LINE_AA, shift);
+        }
+    }
+    cv::Mat* dst[3] = {&tx.vein, &tx.artery, &tx.small};
+    for (int k = 0; k < 3; ++k) {
+        layers[k].convertTo(*dst[k], CV_32F, 1.0 / 255);
+        cv::GaussianBlur(*dst[k], *dst[k], cv::Size(0, 0), 0.8);
+    }
+}
+
+// ---------------------------------------------------------------- appearance
+struct Look {
+    Col cortex, sulcus, vein, artery, small_vessel, bone, bone_wall, dura, skin, skin_cut, drape, gauze, blood;
+    Col light = Col(1, 1, 1), wb = Col(1, 1, 1);
+    double ambient = 0.2, diffuse = 0.9, spec = 1.0, shininess = 60, exposure = 1.0;
+    double bump_mm = 0.12, bump_scale_mm = 0.8, mottle = 0.12;
+    double vignette = 0.3, blur_px = 0.6, noise_sd = 2.0;
+    int jpeg_quality = 90;
+    Vec3 light_offset_camera_mm = Vec3::Zero();
+    double drape_weave_px = 3.0;
+    int drape_kind = 0;
+    uint32_t nseed = 1;
+};
+
+Look random_look(Rng& r) {
+    Look L;
+    // Cortex: a mix of pink, pale-yellowish, red and greyish tissue (subjects and lighting vary).
+    const Col pink = rgb(222, 158, 148), pale = rgb(230, 192, 168), red = rgb(208, 118, 108), grey = rgb(196, 164, 164);
+    double w[4] = {r.uni(0.5, 1.5), r.uni(0, 1.0), r.uni(0, 1.0), r.uni(0, 0.6)};
+    const double ws = w[0] + w[1] + w[2] + w[3];
+    L.cortex = (pink * float(w[0]) + pale * float(w[1]) + red * float(w[2]) + grey * float(w[3])) / float(ws);
+    L.cortex = jitter(r, L.cortex, 0.12, 0.06);
+    L.sulcus = jitter(r, rgb(150, 62, 62), 0.2, 0.08);
+    L.vein = jitter(r, r.chance(0.5) ? rgb(92, 24, 48) : rgb(118, 30, 40), 0.25, 0.1);
+    L.artery = jitter(r, rgb(190, 52, 48), 0.15, 0.08);
+    L.small_vessel = jitter(r, rgb(170, 60, 60), 0.15, 0.08);
+    L.bone = jitter(r, rgb(226, 214, 184), 0.1, 0.04);
+    L.bone_wall = jitter(r, rgb(176, 120, 96), 0.15, 0.08);
+    L.dura = jitter(r, rgb(214, 196, 190), 0.1, 0.05);
+    L.skin = jitter(r, rgb(214, 164, 138), 0.15, 0.06);
+    L.skin_cut = jitter(r, rgb(130, 28, 24), 0.2, 0.08);
+    L.drape_kind = r.integer(0, 2);
+    const Col drapes[3] = {rgb(52, 118, 98), rgb(58, 98, 150), rgb(70, 135, 140)};
+    L.drape = jitter(r, drapes[L.drape_kind], 0.2, 0.1);
+    L.gauze = jitter(r, rgb(244, 244, 238), 0.05, 0.02);
+    L.blood = jitter(r, rgb(105, 10, 14), 0.3, 0.1);
+    // Light: near the camera (ring flash, headlamp or OR lamp), warm or cool.
+    const double temp = r.uni(-1, 1);  // -1 cool, +1 warm
+    L.wb = Col(float(1 + 0.10 * temp), 1.f, float(1 - 0.12 * temp));
+    L.light = Col(1, 1, 1);
+    L.ambient = r.uni(0.12, 0.3);
+    L.diffuse = r.uni(0.75, 1.0);
+    L.spec = r.uni(0.8, 2.5);
+    L.shininess = r.uni(80, 400);
+    L.exposure = r.uni(0.8, 1.25);
+    L.bump_mm = r.uni(0.1, 0.3);
+    L.bump_scale_mm = r.uni(0.4, 1.0);
+    L.mottle = r.uni(0.05, 0.2);
+    L.vignette = r.uni(0.1, 0.5);
+    L.blur_px = r.uni(0.3, 1.1);
+    L.noise_sd = r.uni(1.0, 4.5);
+    L.jpeg_quality = r.integer(60, 95);
+    L.light_offset_camera_mm = Vec3(r.uni(-120, 120), r.uni(-120, 120), r.uni(-40, 20));
+    L.drape_weave_px = r.uni(2.0, 4.5);
+    L.nseed = r.u32();
+    return L;
+}
+
+enum Layer : uint8_t { kDrape = 0, kSkin, kSkinCut, kBone, kDura, kBoneWall, kCortex, kDark };
+
+// ---------------------------------------------------------------- helpers
+/// Camera distortion coefficients for a consumer lens.
+std::array<double, 5> random_distortion(Rng& r) {
+    const double k1 = r.uni(-0.15, 0.08);
+    return {k1, r.uni(-0.3, 0.3) * std::abs(k1), r.uni(-0.0015, 0.0015), r.uni(-0.0015, 0.0015), 0.0};
+}
+
+/// Least-squares radius of the sphere tangent at c with normal n through points `pts`.
+double fit_sphere_radius(const std::vector<Vec3>& pts, const Vec3& c, const Vec3& n) {
+    double best = 80, best_cost = 1e300;
+    for (double R = 40; R <= 250; R += 2) {
+        const Vec3 O = c - n * R;
+        double cost = 0;
+        for (const auto& p : pts) {
+            const double e = (p - O).norm() - R;
+            cost += e * e;
+        }
+        if (cost < best_cost) best_cost = cost, best = R;
+    }
+    return best;
+}
+
+/// Evenly spaced points (by arc length) along a closed contour.
+std::vector<Vec2> resample_closed(const std::vector<cv::Point>& c, int n) {
+    std::vector<double> acc(c.size() + 1, 0.0);
+    for (size_t i = 0; i < c.size(); ++i) {
+        const cv::Point d = c[(i + 1) % c.size()] - c[i];
+        acc[i + 1] = acc[i] + std::hypot(double(d.x), double(d.y));
+    }
+    std::vector<Vec2> out;
+    const double L = acc.back();
+    size_t j = 0;
+    for (int k = 0; k < n; ++k) {
+        const double s = L * k / n;
+        while (j + 1 < acc.size() - 1 && acc[j + 1] < s) ++j;
+        const double seg = acc[j + 1] - acc[j];
+        const double t = seg > 0 ? (s - acc[j]) / seg : 0;
+        const cv::Point a = c[j], b = c[(j + 1) % c.size()];
+        out.emplace_back(a.x + t * (b.x - a.x), a.y + t * (b.y - a.y));
+    }
+    return out;
+}
+
+std::string fmt(double v, int prec = 2) {
+    std::ostringstream s;
+    s.setf(std::ios::fixed);
+    s.precision(prec);
+    s << v;
+    return s.str();
+}
+
+}  // namespace
+
+// ================================================================ one case
+PhantomCase generate_phantom_case(const PhantomSurface& S, const PhantomParams& P, int index) {
+    P.validate();
+    Rng rng(splitmix64(P.seed * 0x100000001B3ull + splitmix64(uint64_t(index) + 1)));
+    PhantomCase out;
+    std::ostringstream notes;
+
+    // ---- image size: base (varied) or DSLR
+    const bool dslr = rng.chance(P.dslr_fraction);
+    int W = P.width, H = P.height;
+    if (P.vary_size) {
+        const double aspects[3] = {1.5, 4.0 / 3.0, 1.6};
+        const double asp = aspects[rng.integer(0, 2)];
+        W = int(std::lround(P.width * rng.uni(0.8, 1.2)));
+        H = int(std::lround(W / asp));
+    }
+    if (dslr) W = P.dslr_width, H = P.dslr_height;
+    // Render at most ~1600 px wide, upscale after (a DSLR photo is rarely sharper than that).
+    const double render_scale = std::min(1.0, 1600.0 / W);
+    const int rw = std::max(32, int(std::lround(W * render_scale))), rh = std::max(32, int(std::lround(H * render_scale)));
+
+    // ---- craniotomy centre on the upper / lateral convexity
+    const size_t nv = S.mesh.vertices.size();
+    std::vector<size_t> cand;
+    for (size_t i = 0; i < nv; i += 7) {
+        const Eigen::Vector3f& n = S.smooth_normals[i];
+        const bool convex = n.z() > -0.1f && (std::abs(n.x()) > 0.45f || n.z() > 0.6f) && std::abs(n.y()) < 0.75f;
+        if (convex && S.sulcal_depth_mm[i] < 1.0f && (S.smooth_vertices[i] - S.centroid_world_mm).dot(n) > 0) cand.push_back(i);
+    }
+    if (cand.empty()) throw InputError("brain surface", "no convex upper/lateral region found for a craniotomy");
+    const size_t ci = cand[size_t(rng.integer(0, int(cand.size()) - 1))];
+    Crani cr;
+    cr.c = S.smooth_vertices[ci].cast<double>();
+    const double diam = rng.uni(P.craniotomy_mm);
+    {
+        Vec3 nsum = Vec3::Zero();
+        std::vector<Vec3> near;
+        const Vec3 nc = S.smooth_normals[ci].cast<double>();
+        for (size_t i = 0; i < nv; i += 3) {
+            const Vec3 p = S.smooth_vertices[i].cast<double>();
+            const double d = (p - cr.c).norm();
+            if (d < 0.5 * diam + 12 && S.smooth_normals[i].cast<double>().dot(nc) > 0.5) {
+                if (d < 20) nsum += S.smooth_normals[i].cast<double>();
+                near.push_back(p);
+            }
+        }
+        cr.n = nsum.norm() > 0 ? nsum.normalized() : nc.normalized();
+        cr.Rc = fit_sphere_radius(near, cr.c, cr.n);
+    }
+    cr.e1 = cr.n.unitOrthogonal();
+    cr.e2 = cr.n.cross(cr.e1);
+    cr.O = cr.c - cr.n * cr.Rc;
+    cr.R1 = diam / 2;
+    cr.R2 = cr.R1 * rng.uni(0.7, 1.0);
+    cr.phi = rng.uni(0, kPi);
+    for (size_t i = 0; i < cr.amp.size(); ++i) cr.amp[i] = rng.normal() * 0.035 / double(i + 1), cr.phase[i] = rng.uni(0, 2 * kPi);
+    for (size_t i = 0; i < cr.skin_amp.size(); ++i) {
+        cr.skin_amp[i] = rng.normal() * 0.2;
+        cr.skin_phase[i] = rng.uni(0, 2 * kPi);
+        cr.drape_amp[i] = rng.normal() * 0.12;
+        cr.drape_phase[i] = rng.uni(0, 2 * kPi);
+    }
+    cr.bone_w = rng.uni(3, 9);
+    cr.skin_w = rng.uni(6, 35);
+    cr.dura_w = rng.uni(1.5, 5);
+    const double bone_above_rim = rng.uni(0.5, 3.0), scalp_mm = rng.uni(2, 5);
+
+    // ---- pose: near the outward normal, tilted, random roll
+    const double tilt = P.max_tilt_deg * std::sqrt(rng.uni()) * kPi / 180, az = rng.uni(0, 2 * kPi);
+    const Vec3 view_dir = (std::cos(tilt) * cr.n + std::sin(tilt) * (std::cos(az) * cr.e1 + std::sin(az) * cr.e2)).normalized();
+    const double dist = rng.uni(P.distance_mm);
+    const Vec3 target = cr.c + (rng.uni(-0.15, 0.15) * cr.e1 + rng.uni(-0.15, 0.15) * cr.e2) * cr.R1 - cr.n * 4.0;
+    const Vec3 eye = target + view_dir * dist;
+    Vec3 up = view_dir.unitOrthogonal();
+    const double roll = rng.uni(0, 2 * kPi);
+    up = Eigen::AngleAxisd(roll, view_dir) * up;
+    const Pose T = look_at(eye, target, up);
+    out.T_camera_from_world = T;
+
+    Intrinsics K;
+    K.width = W;
+    K.height = H;
+    const double fill = rng.uni(P.fill_fraction);
+    K.fx = fill * H * dist / (2 * cr.R1);
+    K.fy = K.fx * rng.uni(0.998, 1.002);
+    K.cx = (W - 1) * 0.5 + rng.uni(-0.02, 0.02) * W;
+    K.cy = (H - 1) * 0.5 + rng.uni(-0.02, 0.02) * H;
+    const bool distorted = rng.chance(P.distortion_prob);
+    if (distorted) K.distortion = random_distortion(rng);
+    out.camera = K;
+    const Intrinsics Kr = K.resized(rw, rh);
+
+    Look L = random_look(rng);
+    out.jpeg = dslr || !rng.chance(P.png_fraction);
+    out.jpeg_quality = dslr ? rng.integer(85, 96) : L.jpeg_quality;
+    const bool apply_jpeg_artefacts = out.jpeg || rng.chance(0.5);
+
+    // ---- rasterise the brain
+    const RasterBuffers rb = rasterize(S.mesh, Kr, T);
+
+    // ---- texture over the craniotomy (sulcal depth, vessels, bumps)
+    Texture tx;
+    double max_r = 0;
+    for (int k = 0; k < 72; ++k) max_r = std::max(max_r, cr.r_bone(2 * kPi * k / 72));
+    tx.E = max_r * 1.15 + 6;
+    tx.texel = std::max(0.08, 2 * tx.E / 1100);
+    tx.N = int(std::ceil(2 * tx.E / tx.texel));
+    {
+        std::vector<Eigen::Vector3f> uvz(nv);
+        const float nan = std::numeric_limits<float>::quiet_NaN();
+        for (size_t i = 0; i < nv; ++i) {
+            const Vec3 p = S.mesh.vertices[i].cast<double>();
+            if ((p - cr.O).normalized().dot(cr.n) < 0.3) {
+                uvz[i] = Eigen::Vector3f(nan, nan, nan);
+                continue;
+            }
+            double h = 0;
+            const Vec2 t = tx.to_tex(cr.ab(p, &h));
+            uvz[i] = Eigen::Vector3f(float(t.x()), float(t.y()), float(1000 - h));
+        }
+        tx.ortho = rasterize_screen(uvz, S.mesh.triangles, tx.N, tx.N, false);
+    }
+    {
+        // The bone's outer surface sits a little above the brain at the craniotomy rim (the
+        // brain fills the opening): mean height of the outermost surface along the rim.
+        double hsum = 0;
+        int hn = 0;
+        for (int k = 0; k < 90; ++k) {
+            const double th = 2 * kPi * k / 90, r = cr.r_bone(th);
+            const Vec2 t = tx.to_tex(r * Vec2(std::cos(th), std::sin(th)));
+            const int x = int(std::lround(t.x())), y = int(std::lround(t.y()));
+            if (x < 0 || y < 0 || x >= tx.N || y >= tx.N) continue;
+            const float z = tx.ortho.depth_mm[size_t(y) * tx.N + x];
+            if (std::isfinite(z)) hsum += 1000.0 - z, ++hn;
+        }
+        cr.h_bone = (hn > 0 ? hsum / hn : 0.0) + bone_above_rim;
+        cr.h_skin = cr.h_bone + scalp_mm;
+    }
+    tx.sulc = cv::Mat::zeros(tx.N, tx.N, CV_32F);
+    for (int y = 0; y < tx.N; ++y)
+        for (int x = 0; x < tx.N; ++x)
+            tx.sulc.at<float>(y, x) = interpolate_at(tx.ortho, S.mesh.triangles, S.sulcal_depth_mm, x, y, 0.f);
+    cv::GaussianBlur(tx.sulc, tx.sulc_blur, cv::Size(0, 0), 1.5 / tx.texel);
+
+    std::vector<VesselPath> vessels;
+    const int n_veins = rng.integer(1, 4), n_arteries = rng.integer(1, 5), n_small = rng.integer(30, 90);
+    for (int k = 0; k < n_veins; ++k) {
+        const double a0 = rng.uni(0, 2 * kPi);
+        const Vec2 p0 = tx.E * 0.95 * Vec2(std::cos(a0), std::sin(a0));
+        const Vec2 d0 = Eigen::Rotation2Dd(rng.uni(-0.6, 0.6)) * (-p0.normalized());
+        trace_vessel(tx, rng, p0, d0, rng.uni(0.7, 1.9), 0, 0, 400, vessels);
+    }
+    for (int k = 0; k < n_arteries; ++k) {
+        const double a0 = rng.uni(0, 2 * kPi);
+        const Vec2 p0 = tx.E * rng.uni(0.3, 0.95) * Vec2(std::cos(a0), std::sin(a0));
+        const Vec2 d0 = Eigen::Rotation2Dd(rng.uni(-1.2, 1.2)) * (-p0.normalized());
+        trace_vessel(tx, rng, p0, d0, rng.uni(0.25, 0.65), 1, 0, rng.uni(20, 120), vessels);
+    }
+    for (int k = 0; k < n_small; ++k) {
+        const Vec2 p0(rng.uni(-tx.E, tx.E) * 0.9, rng.uni(-tx.E, tx.E) * 0.9);
+        const double a0 = rng.uni(0, 2 * kPi);
+        trace_vessel(tx, rng, p0, Vec2(std::cos(a0), std::sin(a0)), rng.uni(0.05, 0.16), 2, 3, rng.uni(2, 14), vessels);
+    }
+    draw_vessels(tx, vessels);
+    {
+        // Height map (mm): vessels are raised tubes, pia is finely bumpy; its gradient tilts normals.
+        cv::Mat height(tx.N, tx.N, CV_32F);
+        const float bs = float(L.bump_scale_mm);
+        for (int y = 0; y < tx.N; ++y) {
+            float* hp = height.ptr<float>(y);
+            const float* vp = tx.vein.ptr<float>(y);
+            const float* ap = tx.artery.ptr<float>(y);
+            const float* sp = tx.small.ptr<float>(y);
+            for (int x = 0; x < tx.N; ++x) {
+                const float a = float(x * tx.texel), b = float(y * tx.texel);
+                hp[x] = float(L.bump_mm) * fbm(a / bs, b / bs, L.nseed + 11, 3) + 0.5f * vp[x] + 0.3f * ap[x] + 0.06f * sp[x];
+            }
+        }
+        cv::Sobel(height, tx.grad_x, CV_32F, 1, 0, 3, 1.0 / (8 * tx.texel));
+        cv::Sobel(height, tx.grad_y, CV_32F, 0, 1, 3, 1.0 / (8 * tx.texel));
+    }
+
+    // ---- per-pixel layers and shading
+    const Eigen::Matrix3d R = T.topLeftCorner<3, 3>();
+    const Vec3 Cw = -R.transpose() * T.topRightCorner<3, 1>();
+    const Vec3 light_w = Cw + R.transpose() * L.light_offset_camera_mm;
+    const std::vector<Eigen::Vector3f> rays = pixel_rays(Kr);
+    const size_t npx = size_t(rw) * rh;
+    std::vector<uint8_t> layer(npx, kDrape);
+    std::vector<Col> img(npx, Col::Zero());
+    std::vector<Vec3> pworld(npx, Vec3::Zero());
+    const Vec3 light_dir_ref = (light_w - cr.c).normalized();
+    const float ref_dist2 = float((light_w - cr.c).squaredNorm());
+    const uint32_t ns = L.nseed;
+    const double px_per_mm = Kr.fx / dist;
+
+    tbb::parallel_for(0, rh, [&](int v) {
+        for (int u = 0; u < rw; ++u) {
+            const size_t i = size_t(v) * rw + u;
+            const Vec3 d = (R.transpose() * rays[i].cast<double>()).normalized();
+            auto shade = [&](const Col& albedo, const Vec3& nrm, const Vec3& p, double spec_k, double shin) -> Col {
+                const Vec3 l = (light_w - p).normalized();
+                const Vec3 vdir = (Cw - p).normalized();
+                const double ndl = std::max(0.0, nrm.dot(l));
+                const Vec3 h = (l + vdir).normalized();
+                const double sp = spec_k * std::pow(std::max(0.0, nrm.dot(h)), shin);
+                const float fall = std::clamp(ref_dist2 / float((light_w - p).squaredNorm()), 0.6f, 1.5f);
+                return (albedo * float(L.ambient + L.diffuse * ndl) + L.light * float(sp)) * fall;
+            };
+            Vec3 qs, qb;
+            uint8_t lay = kDrape;
+            Vec2 ab_s(0, 0), ab_b(0, 0);
+            const bool hs = cr.hit_sphere(Cw, d, cr.h_skin, qs);
+            if (hs) ab_s = cr.ab(qs);
+            const double th_s = std::atan2(ab_s.y(), ab_s.x()), rho_s = ab_s.norm();
+            if (!hs || rho_s > cr.r_drape(th_s)) {
+                lay = kDrape;
+            } else if (rho_s > cr.r_skin(th_s)) {
+                lay = rho_s < cr.r_skin(th_s) + 1.5 ? kSkinCut : kSkin;
+            } else {
+                const bool hb = cr.hit_sphere(Cw, d, cr.h_bone, qb);
+                if (hb) ab_b = cr.ab(qb);
+                const double th_b = std::atan2(ab_b.y(), ab_b.x()), rho_b = ab_b.norm();
+                if (!hb || rho_b > cr.r_skin(th_b)) {
+                    lay = kSkinCut;  // the cut scalp wall
+                } else if (rho_b > cr.r_bone(th_b)) {
+                    lay = rho_b < cr.r_bone(th_b) + cr.dura_w ? kDura : kBone;
+                } else if (rb.triangle[i] >= 0) {
+                    const Vec3 p = interpolate_at(rb, S.mesh.triangles, S.mesh.vertices, u, v, Eigen::Vector3f(0, 0, 0)).cast<double>();
+                    const Vec2 abc = cr.ab(p);
+                    lay = abc.norm() <= cr.r_bone(std::atan2(abc.y(), abc.x())) + 0.5 ? kCortex : kBoneWall;
+                    pworld[i] = p;
+                } else {
+                    lay = kDark;
+                }
+            }
+            layer[i] = lay;
+            Col c;
+            switch (lay) {
+                case kCortex: {
+                    const Vec3& p = pworld[i];
+                    Vec3 nrm = interpolate_at(rb, S.mesh.triangles, S.normals, u, v, Eigen::Vector3f(0, 0, 1)).cast<double>().normalized();
+                    const float sd = interpolate_at(rb, S.mesh.triangles, S.sulcal_depth_mm, u, v, 0.f);
+                    const Vec2 ab = cr.ab(p);
+                    const float va = tx.sample(tx.vein, ab), aa = tx.sample(tx.artery, ab), sa = tx.sample(tx.small, ab);
+                    const float mot = fbm(float(ab.x() / 4), float(ab.y() / 4), ns + 3, 3);
+                    Col alb = L.cortex * float(1 + L.mottle * (2 * mot - 1));
+                    // Sulci: darker, redder (pia, CSF and small vessels in the groove).
+                    alb = mix(alb, L.sulcus, 0.85f * smoothstep(0.6f, 3.5f, sd));
+                    alb = mix(alb, L.small_vessel, 0.55f * sa);
+                    alb = mix(alb, L.artery, 0.9f * aa);
+                    alb = mix(alb, L.vein, 0.95f * va);
+                    // Bump: tilt the normal by the texture height gradient.
+                    const float gx = tx.sample(tx.grad_x, ab), gy = tx.sample(tx.grad_y, ab);
+                    Vec3 t1 = cr.e1 - nrm * nrm.dot(cr.e1), t2 = cr.e2 - nrm * nrm.dot(cr.e2);
+                    nrm = (nrm - double(gx) * t1 - double(gy) * t2).normalized();
+                    const double wet = L.spec * (1 - 0.5 * smoothstep(1.f, 4.f, sd));
+                    c = shade(alb, nrm, p, wet, L.shininess);
+                    // Deep sulci get little light.
+                    c *= float(1 - 0.45 * smoothstep(2.f, 8.f, sd));
+                    break;
+                }
+                case kBone:
+                case kDura: {
+                    const Vec3 nrm = (qb - cr.O).normalized();
+                    const float t = fbm(float(ab_b.x() / 2), float(ab_b.y() / 2), ns + 5, 4);
+                    Col alb = lay == kBone ? L.bone * (0.8f + 0.35f * t) : L.dura * (0.85f + 0.25f * t);
+                    // Blood stains on bone near the edge.
+                    const float st = fbm(float(ab_b.x() / 5), float(ab_b.y() / 5), ns + 6, 3);
+                    alb = mix(alb, L.blood * 1.6f, 0.8f * smoothstep(0.55f, 0.75f, st));
+                    c = shade(alb, nrm, qb, lay == kDura ? L.spec * 0.7 : 0.25, lay == kDura ? 50 : 12);
+                    break;
+                }
+                case kBoneWall: {
+                    const Vec3 radial = (pworld[i] - cr.c);
+                    const Vec3 nrm = (-(radial - cr.n * radial.dot(cr.n)).normalized() + 0.3 * cr.n).normalized();
+                    const float t = fbm(float(u * 0.08), float(v * 0.08), ns + 7, 3);
+                    c = shade(L.bone_wall * (0.7f + 0.4f * t), nrm, pworld[i], 0.3, 20) * 0.75f;
+                    break;
+                }
+                case kSkin:
+                case kSkinCut: {
+                    const Vec3 nrm = (qs - cr.O).normalized();
+                    const float t = fbm(float(ab_s.x() / 3), float(ab_s.y() / 3), ns + 8, 4);
+                    const double edge = hs ? rho_s - cr.r_skin(th_s) : 0;
+                    Col alb = L.skin * (0.85f + 0.3f * t);
+                    alb = mix(alb, L.skin_cut, float(1 - smoothstep(0.f, 5.f, float(edge))));
+                    if (lay == kSkinCut) {
+                        const float t2 = fbm(float(u * 0.15), float(v * 0.15), ns + 12, 3);
+                        alb = L.skin_cut * (0.35f + 0.5f * t2);
+                    }
+                    c = shade(alb, nrm, hs ? qs : cr.c, L.spec * 0.4, 30);
+                    break;
+                }
+                case kDark:
+                    c = L.bone_wall * 0.08f;
+                    break;
+                default: {  // drapes: cloth weave and folds, in image space
+                    const float su = float(u / render_scale), sv = float(v / render_scale);
+                    const float fold = fbm(su / 180.f, sv / 180.f, ns + 9, 3);
+                    const float weave = 0.5f + 0.5f * std::sin(su * 2 * float(kPi) / float(L.drape_weave_px)) *
+                                                    std::sin(sv * 2 * float(kPi) / float(L.drape_weave_px));
+                    const float fine = vnoise(su * 0.7f, sv * 0.7f, ns + 10);
+                    c = L.drape * (0.45f + 0.9f * fold) * (0.88f + 0.12f * weave) * (0.94f + 0.12f * fine) * float(L.exposure);
+                    break;
+                }
+            }
+            img[i] = c;
+        }
+    });
+    (void)light_dir_ref;
+
+    // ---- visible cortex mask (render size)
+    cv::Mat cortex(rh, rw, CV_8U, cv::Scalar(0));
+    for (size_t i = 0; i < npx; ++i)
+        if (layer[i] == kCortex) cortex.data[i] = 255;
+    {
+        // Keep the largest connected region only.
+        cv::Mat lab, stats, cents;
+        const int nl = cv::connectedComponentsWithStats(cortex, lab, stats, cents, 8, CV_32S);
+        int best = -1, best_area = 0;
+        for (int l = 1; l < nl; ++l)
+            if (stats.at<int>(l, cv::CC_STAT_AREA) > best_area) best_area = stats.at<int>(l, cv::CC_STAT_AREA), best = l;
+        if (best < 0 || best_area < int(npx / 200))
+            throw InputError("phantom case " + std::to_string(index), "too little cortex visible (internal: bad pose)");
+        cv::compare(lab, best, cortex, cv::CMP_EQ);
+    }
+
+    // ---- gauze (cottonoid patties) and blood over part of the cortex
+    cv::Mat occl(rh, rw, CV_8U, cv::Scalar(0));
+    std::vector<cv::Point> cortex_contour;
+    {
+        std::vector<std::vector<cv::Point>> cs;
+        cv::findContours(cortex.clone(), cs, cv::RETR_EXTERNAL, cv::CHAIN_APPROX_NONE);
+        for (auto& c : cs)
+            if (c.size() > cortex_contour.size()) cortex_contour = c;
+    }
+    cv::Moments mo = cv::moments(cortex, true);
+    const Vec2 cortex_c(mo.m10 / mo.m00, mo.m01 / mo.m00);
+    const bool has_gauze = rng.chance(P.gauze_prob), has_blood = rng.chance(P.blood_prob);
+    int n_gauze = 0, n_blood = 0;
+    if (has_gauze && !cortex_contour.empty()) {
+        n_gauze = rng.integer(1, 2);
+        for (int g = 0; g < n_gauze; ++g) {
+            const cv::Point e = cortex_contour[size_t(rng.integer(0, int(cortex_contour.size()) - 1))];
+            const Vec2 edge(e.x, e.y), inward = (cortex_c - edge).normalized();
+            const double wmm = rng.uni(10, 15), lmm = rng.uni(18, 38);
+            const double wpx = wmm * px_per_mm, lpx = lmm * px_per_mm;
+            const Vec2 gc = edge + inward * wpx * rng.uni(0.1, 0.6);
+            const double ang = std::atan2(inward.y(), inward.x()) + kPi / 2 + rng.uni(-0.5, 0.5);
+            const Vec2 ax(std::cos(ang), std::sin(ang)), ay(-std::sin(ang), std::cos(ang));
+            const float soak = float(rng.uni(0, 0.8));
+            const int x0 = std::max(0, int(gc.x() - lpx)), x1 = std::min(rw - 1, int(gc.x() + lpx));
+            const int y0 = std::max(0, int(gc.y() - lpx)), y1 = std::min(rh - 1, int(gc.y() + lpx));
+            const uint32_t gs = ns + 100 + uint32_t(g);
+            for (int v = y0; v <= y1; ++v)
+                for (int u = x0; u <= x1; ++u) {
+                    const Vec2 q = Vec2(u, v) - gc;
+                    const double s = q.dot(ax) / (lpx / 2), t = q.dot(ay) / (wpx / 2);
+                    const double fray = 0.06 * (vnoise(float(u * 0.3), float(v * 0.3), gs) - 0.5);
+                    const double m = std::max(std::abs(s), std::abs(t)) + fray;
+                    const size_t i = size_t(v) * rw + u;
+                    if (m < 1.0) {
+                        // Cotton: fibrous, slightly uneven, partly blood-soaked, matte.
+                        const double f = 0.35 * px_per_mm;  // fibre scale ~0.35 mm
+                        const float fib = vnoise(float(q.dot(ax) / f), float(q.dot(ay) / (4 * f)), gs + 1);
+                        const float fib2 = vnoise(float(q.dot(ax) / (4 * f)), float(q.dot(ay) / f), gs + 2);
+                        const float lump = fbm(float(u / (3 * px_per_mm)), float(v / (3 * px_per_mm)), gs + 3, 3);
+                        Col alb = L.gauze * (0.78f + 0.06f * fib + 0.06f * fib2 + 0.2f * lump);
+                        const float b = fbm(float(u / (6 * px_per_mm)), float(v / (6 * px_per_mm)), gs + 4, 3);
+                        const float wet = smoothstep(1.05f - soak, 1.25f - soak, b + 0.25f * float(t));
+                        alb = mix(alb, mix(L.blood * 2.5f, L.blood, wet), wet);
+                        const float edge_shade = float(1 - 0.25 * smoothstep(0.8f, 1.0f, float(m)));
+                        img[i] = alb * float(L.ambient + L.diffuse * 0.85) * edge_shade;
+                        occl.data[i] = 255;
+                    } else if (m < 1.12) {
+                        img[i] *= float(0.55 + 0.45 * (m - 1.0) / 0.12);  // contact shadow
+                    }
+                }
+            // The x-ray thread of the patty.
+            const Vec2 a = gc + ax * lpx * 0.5, b = a + (ax * 0.6 - inward * 0.8).normalized() * lpx * rng.uni(0.4, 1.2);
+            cv::Mat thread(rh, rw, CV_8U, cv::Scalar(0));
+            cv::line(thread, cv::Point(int(a.x()), int(a.y())), cv::Point(int(b.x()), int(b.y())), cv::Scalar(255),
+                     std::max(1, int(0.5 * px_per_mm)), cv::LINE_AA);
+            const Col thread_col = rgb(40, 50, 90);
+            for (size_t i = 0; i < npx; ++i)
+                if (thread.data[i]) img[i] = mix(img[i], thread_col, float(thread.data[i]) / 255.f);
+        }
+    }
+    if (has_blood && !cortex_contour.empty()) {
+        n_blood = rng.integer(1, 3);
+        for (int bI = 0; bI < n_blood; ++bI) {
+            const cv::Point e = cortex_contour[size_t(rng.integer(0, int(cortex_contour.size()) - 1))];
+            const Vec2 edge(e.x, e.y), inward = (cortex_c - edge).normalized();
+            const double rpx = rng.uni(3, 11) * px_per_mm;
+            const Vec2 bc = edge + inward * rpx * rng.uni(0.0, 1.2);
+            const uint32_t bs = ns + 200 + uint32_t(bI);
+            const int x0 = std::max(0, int(bc.x() - 2 * rpx)), x1 = std::min(rw - 1, int(bc.x() + 2 * rpx));
+            const int y0 = std::max(0, int(bc.y() - 2 * rpx)), y1 = std::min(rh - 1, int(bc.y() + 2 * rpx));
+            const float thin = float(rng.uni(0.2, 0.8));
+            for (int v = y0; v <= y1; ++v)
+                for (int u = x0; u <= x1; ++u) {
+                    const size_t i = size_t(v) * rw + u;
+                    const double r = (Vec2(u, v) - bc).norm() / rpx;
+                    const float nz = fbm(float(u / rpx * 1.5), float(v / rpx * 1.5), bs, 3);
+                    const double m = r + 0.7 * (nz - 0.5);
+                    if (m < 1.0 && layer[i] != kDrape) {
+                        // A glossy pool: dark red, thinner (redder) at the rim, specular flecks.
+                        const float rim = float(smoothstep(0.75f, 1.0f, float(m)));
+                        Col col = mix(L.blood, L.blood * 2.2f + rgb(40, 0, 0), rim * thin);
+                        const float fleck = fbm(float(u / (2.5 * px_per_mm)), float(v / (2.5 * px_per_mm)), bs + 1, 2);
+                        col += L.light * float(1.2 * smoothstep(0.84f, 0.9f, fleck) * L.spec * 0.6);
+                        const float a = float(1 - smoothstep(0.9f, 1.0f, float(m)));
+                        img[i] = mix(img[i], col * float(L.ambient + L.diffuse), a);
+                        if (a > 0.5f) occl.data[i] = 255;
+                    }
+                }
+        }
+    }
+
+    // ---- ROI: a little inside the visible cortex
+    std::vector<Vec2> roi_render;
+    cv::Mat cortex_inner;
+    {
+        const int er = std::max(2, int(std::lround(0.012 * rw)));
+        cv::erode(cortex, cortex_inner, cv::getStructuringElement(cv::MORPH_ELLIPSE, cv::Size(2 * er + 1, 2 * er + 1)));
+        std::vector<std::vector<cv::Point>> cs;
+        cv::findContours(cortex_inner.clone(), cs, cv::RETR_EXTERNAL, cv::CHAIN_APPROX_NONE);
+        const std::vector<cv::Point>* best = nullptr;
+        for (auto& c : cs)
+            if (!best || cv::contourArea(c) > cv::contourArea(*best)) best = &c;
+        if (!best || best->size() < 20) throw InputError("phantom case " + std::to_string(index), "no ROI (internal)");
+        // Smooth the contour so that the spline is not jagged, then pick control points.
+        cv::Mat roi_fill(rh, rw, CV_8U, cv::Scalar(0));
+        cv::drawContours(roi_fill, std::vector<std::vector<cv::Point>>{*best}, 0, cv::Scalar(255), cv::FILLED);
+        cortex_inner = roi_fill;
+        std::vector<cv::Point> approx;
+        const int npts = rng.integer(10, 16);
+        roi_render = resample_closed(*best, npts);
+        // Pull the control points slightly inwards: the spline overshoots between them.
+        cv::Moments m = cv::moments(roi_fill, true);
+        const Vec2 cc(m.m10 / m.m00, m.m01 / m.m00);
+        for (auto& p : roi_render) p += (cc - p).normalized() * std::min(3.0, 0.15 * (cc - p).norm());
+    }
+    const double to_final = double(W) / rw;
+    auto final_px = [&](const Vec2& pr) { return Vec2((pr.x() + 0.5) * to_final - 0.5, (pr.y() + 0.5) * double(H) / rh - 0.5); };
+    for (const auto& p : roi_render) out.roi_points.push_back(final_px(p));
+
+    // Pixels well inside the ROI, for targets and landmarks.
+    cv::Mat inner;
+    {
+        const int er = std::max(2, int(std::lround(0.02 * rw)));
+        cv::erode(cortex_inner, inner, cv::getStructuringElement(cv::MORPH_ELLIPSE, cv::Size(2 * er + 1, 2 * er + 1)));
+    }
+    std::vector<int> inner_px;
+    for (size_t i = 0; i < npx; ++i)
+        if (inner.data[i] && layer[i] == kCortex && rb.triangle[i] >= 0) inner_px.push_back(int(i));
+    if (inner_px.size() < 50) throw InputError("phantom case " + std::to_string(index), "cortex region too small (internal)");
+
+    // ---- targets: visible cortex points spread over the ROI
+    {
+        const int nt = rng.integer(P.targets_min, P.targets_max);
+        std::vector<Vec2> chosen_px;
+        const double min_sep = std::sqrt(double(inner_px.size()) / nt) * 0.5;
+        for (int tries = 0; tries < 4000 && int(out.targets_world_mm.size()) < nt; ++tries) {
+            const int i = inner_px[size_t(rng.integer(0, int(inner_px.size()) - 1))];
+            const Vec2 q(i % rw, i / rw);
+            bool ok = true;
+            for (const auto& c : chosen_px)
+                if ((c - q).norm() < min_sep * (tries < 2000 ? 1.0 : 0.3)) ok = false;
+            if (!ok) continue;
+            chosen_px.push_back(q);
+            out.targets_world_mm.push_back(pworld[size_t(i)]);
+        }
+    }
+
+    // ---- landmarks: vessel bifurcations and sulcal points, visible and unoccluded
+    {
+        std::vector<std::pair<Vec3, Vec2>> cands;  // world, render pixel
+        auto visible_px = [&](const Vec3& p, Vec2& px) {
+            const auto q = project(Kr, T, p);
+            if (!q) return false;
+            const int u = int(std::lround(q->x())), v = int(std::lround(q->y()));
+            if (u < 0 || v < 0 || u >= rw || v >= rh) return false;
+            const size_t i = size_t(v) * rw + u;
+            if (!inner.data[i] || occl.data[i] || layer[i] != kCortex) return false;
+            const double zc = (T.topLeftCorner<3, 3>() * p + T.topRightCorner<3, 1>()).z();
+            if (std::abs(zc - rb.depth_mm[i]) > 1.0) return false;
+            px = *q;
+            return true;
+        };
+        for (const auto& ab : tx.bifurcations_ab) {
+            const Vec2 t = tx.to_tex(ab);
+            const int x = int(std::lround(t.x())), y = int(std::lround(t.y()));
+            if (x < 0 || y < 0 || x >= tx.N || y >= tx.N || tx.ortho.triangle[size_t(y) * tx.N + x] < 0) continue;
+            const Vec3 p = interpolate_at(tx.ortho, S.mesh.triangles, S.mesh.vertices, x, y, Eigen::Vector3f(0, 0, 0)).cast<double>();
+            Vec2 px;
+            if (visible_px(p, px)) cands.emplace_back(p, px);
+        }
+        const size_t n_bif = cands.size();
+        for (int tries = 0; tries < 3000 && cands.size() < n_bif + 60; ++tries) {
+            const int i = inner_px[size_t(rng.integer(0, int(inner_px.size()) - 1))];
+            const int u = i % rw, v = i / rw;
+            const float sd = interpolate_at(rb, S.mesh.triangles, S.sulcal_depth_mm, u, v, 0.f);
+            if (sd < 1.0f || sd > 3.5f) continue;  // the visible lip of a sulcus
+            Vec2 px;
+            if (visible_px(pworld[size_t(i)], px)) cands.emplace_back(pworld[size_t(i)], px);
+        }
+        if (cands.size() < 4) {  // fall back to any visible cortex point
+            for (int tries = 0; tries < 2000 && cands.size() < 40; ++tries) {
+                const int i = inner_px[size_t(rng.integer(0, int(inner_px.size()) - 1))];
+                Vec2 px;
+                if (visible_px(pworld[size_t(i)], px)) cands.emplace_back(pworld[size_t(i)], px);
+            }
+        }
+        // Farthest-point sampling in the image, starting from a random candidate; bifurcations
+        // are favoured by a bonus.
+        const int nl = std::min<int>(rng.integer(P.landmarks_min, P.landmarks_max), int(cands.size()));
+        std::vector<size_t> pick;
+        if (!cands.empty()) pick.push_back(size_t(rng.integer(0, int(cands.size()) - 1)));
+        while (int(pick.size()) < nl) {
+            double best = -1;
+            size_t bi = 0;
+            for (size_t k = 0; k < cands.size(); ++k) {
+                double dmin = 1e300;
+                for (size_t q : pick) dmin = std::min(dmin, (cands[k].second - cands[q].second).norm());
+                const double score = dmin * (k < n_bif ? 1.3 : 1.0);
+                if (score > best) best = score, bi = k;
+            }
+            pick.push_back(bi);
+        }
+        const double px_sd = rng.uni(P.landmark_pixel_sd) * W / 750.0;
+        for (size_t k = 0; k < pick.size(); ++k) {
+            const auto& [p, pr] = cands[pick[k]];
+            PhantomLandmark lm;
+            lm.label = "L" + std::to_string(k + 1);
+            lm.true_world_mm = p;
+            lm.world_mm = p + P.landmark_world_sd_mm * Vec3(rng.normal(), rng.normal(), rng.normal());
+            const auto q = project(K, T, p);
+            lm.pixel = *q + px_sd * Vec2(rng.normal(), rng.normal());
+            lm.pixel.x() = std::clamp(lm.pixel.x(), 0.0, double(W - 1));
+            lm.pixel.y() = std::clamp(lm.pixel.y(), 0.0, double(H - 1));
+            out.landmarks.push_back(lm);
+        }
+        if (out.landmarks.size() < 4) throw InputError("phantom case " + std::to_string(index), "fewer than 4 landmarks visible (internal)");
+        notes << "landmark_pixel_sd=" << fmt(px_sd) << " bifurcation_candidates=" << n_bif << "; ";
+    }
+
+    // ---- post: white balance, exposure, vignetting, sRGB, blur, upscale, noise, JPEG
+    cv::Mat photo(rh, rw, CV_32FC3);
+    {
+        const double cxn = Kr.cx, cyn = Kr.cy, rn = std::hypot(rw * 0.5, rh * 0.5);
+        for (int v = 0; v < rh; ++v) {
+            cv::Vec3f* row = photo.ptr<cv::Vec3f>(v);
+            for (int u = 0; u < rw; ++u) {
+                const size_t i = size_t(v) * rw + u;
+                const double r2 = (std::pow(u - cxn, 2) + std::pow(v - cyn, 2)) / (rn * rn);
+                const float vig = float(1 - L.vignette * r2);
+                Col c = img[i] * L.wb * float(L.exposure) * vig;
+                for (int k = 0; k < 3; ++k) c[k] = std::pow(std::clamp(c[k], 0.f, 1.f), 1 / 2.2f);
+                row[u] = cv::Vec3f(c[2], c[1], c[0]) * 255.f;  // BGR
+            }
+        }
+    }
+    cv::GaussianBlur(photo, photo, cv::Size(0, 0), L.blur_px);
+    if (rw != W || rh != H) cv::resize(photo, photo, cv::Size(W, H), 0, 0, cv::INTER_CUBIC);
+    {
+        cv::Mat noise(H, W, CV_32FC3);
+        cv::RNG cvr(uint64_t(rng.u32()) << 16 | 7);
+        cvr.fill(noise, cv::RNG::NORMAL, cv::Scalar::all(0), cv::Scalar::all(L.noise_sd * (dslr ? 1.5 : 1.0)));
+        photo += noise;
+    }
+    photo.convertTo(out.photo_bgr, CV_8UC3);  // saturates
+    if (apply_jpeg_artefacts && !out.jpeg) {
+        std::vector<uchar> buf;
+        cv::imencode(".jpg", out.photo_bgr, buf, {cv::IMWRITE_JPEG_QUALITY, L.jpeg_quality});
+        out.photo_bgr = cv::imdecode(buf, cv::IMREAD_COLOR);
+    }
+
+    notes << "size=" << W << "x" << H << (dslr ? " dslr" : "") << " render=" << rw << "x" << rh
+          << " distance_mm=" << fmt(dist, 1) << " tilt_deg=" << fmt(tilt * 180 / kPi, 1) << " roll_deg=" << fmt(roll * 180 / kPi, 1)
+          << " craniotomy_mm=" << fmt(diam, 1) << " head_radius_mm=" << fmt(cr.Rc, 0) << " distortion=" << (distorted ? "yes" : "no")
+          << " gauze=" << n_gauze << " blood=" << n_blood << " veins=" << n_veins << " arteries=" << n_arteries
+          << " shininess=" << fmt(L.shininess, 0) << " spec=" << fmt(L.spec) << " exposure=" << fmt(L.exposure)
+          << " noise_sd=" << fmt(L.noise_sd)
+          << " jpeg_quality=" << (out.jpeg ? out.jpeg_quality : (apply_jpeg_artefacts ? L.jpeg_quality : 0));
+    out.notes = notes.str();
+    return out;
+}
+
+}  // namespace cf

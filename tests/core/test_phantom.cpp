@@ -1,0 +1,288 @@
+// The phantom generator and its software rasteriser.
+#include <gtest/gtest.h>
+#include <unistd.h>
+
+#include <filesystem>
+#include <fstream>
+#include <iterator>
+#include <nlohmann/json.hpp>
+#include <opencv2/imgproc.hpp>
+
+#include "cortexfuse/core/camera.hpp"
+#include "cortexfuse/core/case.hpp"
+#include "cortexfuse/core/error.hpp"
+#include "cortexfuse/core/phantom.hpp"
+#include "cortexfuse/core/rasterizer.hpp"
+#include "cortexfuse/core/roi.hpp"
+
+namespace fs = std::filesystem;
+using namespace cf;
+
+namespace {
+
+fs::path tmpdir(const std::string& name) {
+    auto p = fs::temp_directory_path() / ("cf_test_phantom_" + name + "_" + std::to_string(::getpid()));
+    fs::remove_all(p);
+    fs::create_directories(p);
+    return p;
+}
+
+std::string slurp(const fs::path& p) {
+    std::ifstream f(p, std::ios::binary);
+    return std::string(std::istreambuf_iterator<char>(f), {});
+}
+
+const fs::path kVolume = fs::path(CF_DATA_DIR) / "t1_head_mne_ecog.nii.gz";
+const fs::path kMask = fs::path(CF_DATA_DIR) / "brainmask_mne_ecog_binary.nii.gz";
+
+Intrinsics small_camera() {
+    Intrinsics K;
+    K.width = 64;
+    K.height = 48;
+    K.fx = K.fy = 100;
+    K.cx = 31.5;
+    K.cy = 23.5;
+    return K;
+}
+
+}  // namespace
+
+// ---------------------------------------------------------------- rasteriser
+TEST(Rasterizer, SquareFacingCameraHasExactDepthAndArea) {
+    // A 20 mm square at z = 100 mm: 20 px wide at f = 100 px.
+    RasterMesh m;
+    m.vertices = {{-10, -10, 100}, {10, -10, 100}, {10, 10, 100}, {-10, 10, 100}};
+    m.triangles = {{0, 1, 2}, {0, 2, 3}};
+    const Intrinsics K = small_camera();
+    const RasterBuffers rb = rasterize(m, K, Pose::Identity());
+    int hits = 0;
+    for (int v = 0; v < K.height; ++v)
+        for (int u = 0; u < K.width; ++u)
+            if (rb.hit(u, v)) {
+                ++hits;
+                EXPECT_NEAR(rb.depth_mm[rb.index(u, v)], 100.f, 1e-3f);
+                // The interpolated point is where the pixel's ray meets the plane.
+                const Eigen::Vector3f p = interpolate_at(rb, m.triangles, m.vertices, u, v, Eigen::Vector3f::Zero());
+                EXPECT_NEAR(p.x(), (u - K.cx) / K.fx * 100, 1e-3);
+                EXPECT_NEAR(p.y(), (v - K.cy) / K.fy * 100, 1e-3);
+            }
+    EXPECT_NEAR(hits, 20 * 20, 2 * 20 + 2 * 20);  // the area, up to edge pixels
+    EXPECT_FALSE(rb.hit(0, 0));
+    EXPECT_TRUE(std::isinf(rb.depth_mm[0]));
+}
+
+TEST(Rasterizer, CubeNearFaceWinsAndPerspectiveIsCorrect) {
+    // Unit-ish cube (20 mm) centred at z = 100, seen along +z: the visible face is z = 90.
+    RasterMesh m;
+    for (int i = 0; i < 8; ++i)
+        m.vertices.emplace_back((i & 1) ? 10.f : -10.f, (i & 2) ? 10.f : -10.f, (i & 4) ? 110.f : 90.f);
+    const int f[6][4] = {{0, 1, 3, 2}, {4, 5, 7, 6}, {0, 1, 5, 4}, {2, 3, 7, 6}, {0, 2, 6, 4}, {1, 3, 7, 5}};
+    for (const auto& q : f) {
+        m.triangles.emplace_back(q[0], q[1], q[2]);
+        m.triangles.emplace_back(q[0], q[2], q[3]);
+    }
+    const Intrinsics K = small_camera();
+    const RasterBuffers rb = rasterize(m, K, Pose::Identity());
+    const int u = 31, v = 23;
+    ASSERT_TRUE(rb.hit(u, v));
+    EXPECT_NEAR(rb.depth_mm[rb.index(u, v)], 90.f, 1e-3f);
+    // Tilted plane: perspective-correct interpolation of z along a slanted quad.
+    RasterMesh s;
+    s.vertices = {{-30, -30, 60}, {30, -30, 60}, {30, 30, 140}, {-30, 30, 140}};
+    s.triangles = {{0, 1, 2}, {0, 2, 3}};
+    const RasterBuffers rs = rasterize(s, K, Pose::Identity());
+    for (int vv = 0; vv < K.height; vv += 5)
+        for (int uu = 0; uu < K.width; uu += 5)
+            if (rs.hit(uu, vv)) {
+                const Eigen::Vector3f p = interpolate_at(rs, s.triangles, s.vertices, uu, vv, Eigen::Vector3f::Zero());
+                const auto px = project_camera(K, p.cast<double>());
+                ASSERT_TRUE(px);
+                EXPECT_NEAR(px->x(), uu, 1e-2);
+                EXPECT_NEAR(px->y(), vv, 1e-2);
+                EXPECT_NEAR(rs.depth_mm[rs.index(uu, vv)], p.z(), 1e-2);
+            }
+}
+
+// ---------------------------------------------------------------- generator
+class Phantom : public ::testing::Test {
+protected:
+    static void SetUpTestSuite() {
+        const Volume t1 = load_volume(kVolume);
+        const LabelVolume mask = load_mask(kMask);
+        surface_ = new PhantomSurface(build_phantom_surface(t1, mask));
+    }
+    static void TearDownTestSuite() {
+        delete surface_;
+        surface_ = nullptr;
+    }
+    static PhantomSurface* surface_;
+};
+PhantomSurface* Phantom::surface_ = nullptr;
+
+TEST_F(Phantom, SurfaceIsABrainInWorldLps) {
+    const auto& s = *surface_;
+    ASSERT_GT(s.mesh.triangles.size(), 50000u);
+    Eigen::AlignedBox3f box;
+    for (const auto& v : s.mesh.vertices) box.extend(v);
+    const Eigen::Vector3f ext = box.sizes();
+    // An adult brain: ~140 x 170 x 110 mm (LR, AP, SI).
+    EXPECT_GT(ext.x(), 110);
+    EXPECT_LT(ext.x(), 180);
+    EXPECT_GT(ext.y(), 140);
+    EXPECT_LT(ext.y(), 210);
+    EXPECT_GT(ext.z(), 80);
+    EXPECT_LT(ext.z(), 150);
+    // Outward normals at the top of the brain point superior (+z in LPS).
+    size_t top = 0;
+    for (size_t i = 0; i < s.mesh.vertices.size(); ++i)
+        if (s.mesh.vertices[i].z() > box.max().z() - 3 && s.smooth_normals[i].z() > 0.5f) ++top;
+    EXPECT_GT(top, 20u);
+}
+
+TEST_F(Phantom, SameSeedSameCase) {
+    PhantomParams p;
+    p.seed = 7;
+    p.gauze_prob = p.blood_prob = 1.0;
+    const PhantomCase a = generate_phantom_case(*surface_, p, 3);
+    const PhantomCase b = generate_phantom_case(*surface_, p, 3);
+    ASSERT_EQ(a.photo_bgr.size(), b.photo_bgr.size());
+    EXPECT_EQ(cv::norm(a.photo_bgr, b.photo_bgr, cv::NORM_INF), 0.0);
+    EXPECT_EQ(a.T_camera_from_world, b.T_camera_from_world);
+    ASSERT_EQ(a.landmarks.size(), b.landmarks.size());
+    for (size_t i = 0; i < a.landmarks.size(); ++i) EXPECT_EQ(a.landmarks[i].pixel, b.landmarks[i].pixel);
+    const PhantomCase c = generate_phantom_case(*surface_, p, 4);
+    EXPECT_NE(a.T_camera_from_world, c.T_camera_from_world);
+}
+
+TEST_F(Phantom, DslrCaseIsFullSizeJpeg) {
+    PhantomParams p;
+    p.seed = 3;
+    p.dslr_fraction = 1.0;
+    const PhantomCase c = generate_phantom_case(*surface_, p, 0);
+    EXPECT_EQ(c.camera.width, 3000);
+    EXPECT_EQ(c.camera.height, 2000);
+    EXPECT_EQ(c.photo_bgr.cols, 3000);
+    EXPECT_EQ(c.photo_bgr.rows, 2000);
+    EXPECT_TRUE(c.jpeg);
+}
+
+TEST_F(Phantom, CasesAreValidConsistentAndPhotoLike) {
+    PhantomParams p;
+    p.seed = 11;
+    p.dslr_fraction = 0.0;
+    p.gauze_prob = p.blood_prob = 0.5;
+    p.distortion_prob = 0.5;
+    const fs::path dir = tmpdir("cases");
+    for (int idx = 0; idx < 4; ++idx) {
+        SCOPED_TRACE("case " + std::to_string(idx));
+        const PhantomCase pc = generate_phantom_case(*surface_, p, idx);
+        const fs::path cd = dir / ("case_" + std::to_string(idx));
+        // Refer to the shipped volume by absolute path (cases written by the batch use ../t1.nii.gz).
+        write_phantom_case(pc, cd, kVolume.string(), kMask.string());
+        ASSERT_TRUE(fs::exists(cd / "truth.json"));
+
+        // Valid per docs/case-format.md: the case reader accepts it.
+        const CaseSpec cs = read_case(cd);
+        ASSERT_TRUE(cs.truth.has_value());
+        ASSERT_TRUE(cs.roi.has_value());
+        const Intrinsics& K = cs.camera;
+        EXPECT_GE(cs.landmarks.size(), 4u);
+        EXPECT_LE(cs.landmarks.size(), 6u);
+        const Pose& T = cs.truth->T_camera_from_world;
+        EXPECT_TRUE(is_rigid(T));
+        const auto& targets = cs.truth->targets_world_mm;
+        EXPECT_GE(targets.size(), 15u);
+        EXPECT_LE(targets.size(), 30u);
+
+        // Targets project inside the image and the ROI.
+        const cv::Mat roi = roi_mask(*cs.roi, K.width, K.height);
+        for (const auto& t : targets) {
+            const auto px = project(K, T, t);
+            ASSERT_TRUE(px);
+            const int u = int(std::lround(px->x())), v = int(std::lround(px->y()));
+            ASSERT_TRUE(u >= 0 && v >= 0 && u < K.width && v < K.height);
+            EXPECT_EQ(roi.at<uint8_t>(v, u), 255) << "target outside the ROI at " << u << "," << v;
+        }
+        // Landmark pixels are within picking noise of the true projections.
+        const nlohmann::json truth = nlohmann::json::parse(slurp(cd / "truth.json"));
+        const auto& lt = truth.at("landmarks_true");
+        ASSERT_EQ(lt.size(), cs.landmarks.size());
+        const double sd_px = p.landmark_pixel_sd[1] * K.width / 750.0;
+        for (size_t i = 0; i < cs.landmarks.size(); ++i) {
+            const Eigen::Vector3d w(lt[i]["world_mm"][0], lt[i]["world_mm"][1], lt[i]["world_mm"][2]);
+            const auto px = project(K, T, w);
+            ASSERT_TRUE(px);
+            EXPECT_LT((*px - cs.landmarks[i].pixel).norm(), 5 * sd_px);
+            EXPECT_LT((w - cs.landmarks[i].world_mm).norm(), 5 * p.landmark_world_sd_mm + 1e-9);
+        }
+
+        // The photo looks like a surgical photo, not a grey rendering: reddish tissue, dark
+        // red vessels inside the ROI, some glare.
+        const cv::Mat photo = load_photo(cs.photo_path);
+        ASSERT_EQ(photo.cols, K.width);
+        ASSERT_EQ(photo.rows, K.height);
+        int inside = 0, vessel = 0, glare = 0;
+        cv::Vec3d mean(0, 0, 0);
+        for (int v = 0; v < K.height; ++v)
+            for (int u = 0; u < K.width; ++u) {
+                if (!roi.at<uint8_t>(v, u)) continue;
+                const cv::Vec3b c = photo.at<cv::Vec3b>(v, u);  // BGR
+                ++inside;
+                mean += cv::Vec3d(c[0], c[1], c[2]);
+                if (c[2] < 170 && c[2] > 1.6 * c[1] && c[2] > 1.3 * c[0]) ++vessel;
+                if (c[0] > 235 && c[1] > 235 && c[2] > 235) ++glare;
+            }
+        ASSERT_GT(inside, 1000);
+        mean /= inside;
+        EXPECT_GT(mean[2], mean[1] + 15) << "cortex should be reddish";
+        EXPECT_GT(vessel, inside / 500) << "dark red vessels expected";
+        EXPECT_GT(glare, 0) << "specular glare expected";
+    }
+    fs::remove_all(dir);
+}
+
+TEST(PhantomBatch, WritesIdenticalFilesForTheSameSeed) {
+    PhantomParams p;
+    p.seed = 5;
+    p.dslr_fraction = 0.0;
+    const fs::path a = tmpdir("batch_a"), b = tmpdir("batch_b");
+    const auto da = generate_phantoms(a, 2, kVolume, kMask, p);
+    const auto db = generate_phantoms(b, 2, kVolume, kMask, p);
+    ASSERT_EQ(da.size(), 2u);
+    EXPECT_TRUE(fs::exists(a / "t1.nii.gz"));
+    EXPECT_TRUE(fs::exists(a / "brain_mask.nii.gz"));
+    for (size_t i = 0; i < da.size(); ++i) {
+        size_t files = 0;
+        for (const auto& e : fs::directory_iterator(da[i])) {
+            ++files;
+            EXPECT_EQ(slurp(e.path()), slurp(db[i] / e.path().filename())) << e.path();
+        }
+        EXPECT_EQ(files, 5u);  // case.json, photo, landmarks.json, roi.json, truth.json
+        // The relative volume reference resolves.
+        const CaseSpec cs = read_case(da[i]);
+        EXPECT_TRUE(fs::exists(cs.volume_path));
+        ASSERT_TRUE(cs.brain_mask_path.has_value());
+        EXPECT_TRUE(fs::exists(*cs.brain_mask_path));
+    }
+    fs::remove_all(a);
+    fs::remove_all(b);
+}
+
+TEST(PhantomBatch, BadInputsAreInputErrors) {
+    const fs::path d = tmpdir("bad");
+    PhantomParams p;
+    EXPECT_THROW(generate_phantoms(d, 0, kVolume, kMask, p), InputError);
+    EXPECT_THROW(generate_phantoms(d, 1, d / "missing.nii.gz", kMask, p), InputError);
+    p.gauze_prob = 1.5;
+    EXPECT_THROW(p.validate(), InputError);
+    // A mask on another grid.
+    Volume v;
+    v.geom.dims = {20, 20, 20};
+    v.voxels.assign(v.geom.voxel_count(), 1.f);
+    LabelVolume m;
+    m.geom = v.geom;
+    m.geom.spacing_mm = Eigen::Vector3d(2, 2, 2);
+    m.voxels.assign(m.geom.voxel_count(), 1);
+    EXPECT_THROW(build_phantom_surface(v, m), InputError);
+    fs::remove_all(d);
+}
