@@ -3,6 +3,7 @@
 #include <opencv2/calib3d.hpp>
 #include <opencv2/core/eigen.hpp>
 
+#include <algorithm>
 #include <cmath>
 
 #include "cortexfuse/core/error.hpp"
@@ -82,6 +83,74 @@ LandmarkFit fit_pose_pnp(const std::vector<Landmark>& lms, const Intrinsics& K) 
     if (!in_front(lms, fit.T_camera_from_world)) throw InputError("landmarks", "the fitted pose puts landmarks behind the camera; check the pairs");
     fit.rms_px = reprojection_rms_px(lms, K, fit.T_camera_from_world);
     return fit;
+}
+
+std::vector<LandmarkFit> pnp_candidates(const std::vector<Landmark>& lms, const Intrinsics& K, double min_sep_deg) {
+    std::vector<LandmarkFit> out{fit_pose_pnp(lms, K)};
+    std::vector<cv::Point3d> obj;
+    std::vector<cv::Point2d> img;
+    for (const auto& l : lms) {
+        obj.emplace_back(l.world_mm.x(), l.world_mm.y(), l.world_mm.z());
+        img.emplace_back(l.pixel.x(), l.pixel.y());
+    }
+    const cv::Matx33d Kcv(K.fx, 0, K.cx, 0, K.fy, K.cy, 0, 0, 1);
+    const std::vector<double> dist(K.distortion.begin(), K.distortion.end());
+    auto consider = [&](cv::Mat rvec, cv::Mat tvec, const char* method) {
+        try {
+            cv::solvePnPRefineLM(obj, img, Kcv, dist, rvec, tvec);
+        } catch (const cv::Exception&) {
+            return;
+        }
+        LandmarkFit f;
+        f.T_camera_from_world = pose_from_rvec(rvec, tvec);
+        if (!f.T_camera_from_world.allFinite() || !in_front(lms, f.T_camera_from_world)) return;
+        f.rms_px = reprojection_rms_px(lms, K, f.T_camera_from_world);
+        f.method = method;
+        for (size_t i = 0; i < lms.size(); ++i) f.inliers.push_back(int(i));
+        for (const auto& o : out) {
+            const Eigen::Matrix3d dR = o.T_camera_from_world.topLeftCorner<3, 3>().transpose() * f.T_camera_from_world.topLeftCorner<3, 3>();
+            if (Eigen::AngleAxisd(dR).angle() * 180.0 / M_PI < min_sep_deg) return;
+        }
+        out.push_back(f);
+    };
+    // Other minimisers land in the other basin when it exists.
+    for (int flag : {cv::SOLVEPNP_EPNP, cv::SOLVEPNP_ITERATIVE}) {
+        cv::Mat rvec, tvec;
+        try {
+            if (cv::solvePnP(obj, img, Kcv, dist, rvec, tvec, false, flag)) consider(rvec, tvec, "pnp");
+        } catch (const cv::Exception&) {
+        }
+    }
+    // The mirror of the best pose: tilt the view about the landmarks' centroid, then refine.
+    {
+        const Pose& T = out.front().T_camera_from_world;
+        Eigen::Vector3d c = Eigen::Vector3d::Zero();
+        for (const auto& l : lms) c += l.world_mm;
+        c /= double(lms.size());
+        const Eigen::Vector3d pc = T.topLeftCorner<3, 3>() * c + T.topRightCorner<3, 1>();
+        const std::array<Eigen::Vector3d, 4> axes{Eigen::Vector3d(1, 0, 0), Eigen::Vector3d(0, 1, 0),
+                                                  Eigen::Vector3d(1, 1, 0).normalized(), Eigen::Vector3d(1, -1, 0).normalized()};
+        for (const auto& axis : axes)
+            for (double sign : {-1.0, 1.0}) {
+                const Eigen::Matrix3d R = Eigen::AngleAxisd(sign * 40.0 * M_PI / 180.0, axis).toRotationMatrix();
+                Pose M = Pose::Identity();
+                M.topLeftCorner<3, 3>() = R;
+                M.topRightCorner<3, 1>() = pc - R * pc;
+                const Pose T2 = M * T;
+                cv::Mat R2(3, 3, CV_64F), rvec, tvec(3, 1, CV_64F);
+                for (int r = 0; r < 3; ++r) {
+                    for (int k = 0; k < 3; ++k) R2.at<double>(r, k) = T2(r, k);
+                    tvec.at<double>(r) = T2(r, 3);
+                }
+                cv::Rodrigues(R2, rvec);
+                consider(rvec, tvec, "pnp-mirror");
+            }
+    }
+    std::sort(out.begin(), out.end(), [](const LandmarkFit& a, const LandmarkFit& b) { return a.rms_px < b.rms_px; });
+    // Keep those that explain the landmarks nearly as well as the best (noise of a few px).
+    const double limit = out.front().rms_px * 2.0 + 2.0;
+    out.erase(std::remove_if(out.begin(), out.end(), [&](const LandmarkFit& f) { return f.rms_px > limit; }), out.end());
+    return out;
 }
 
 LandmarkFit fit_pose_orthographic(const std::vector<Landmark>& lms, const Intrinsics& K) {

@@ -17,6 +17,7 @@ namespace {
 
 constexpr int kBrick = 8;      // brick edge in voxels for empty-space skipping
 constexpr int kLutSize = 4096; // entries of the baked transfer function
+constexpr int kMacro = 4;      // macro brick edge in bricks (32 voxels)
 
 class CpuRenderer final : public Renderer {
 public:
@@ -85,11 +86,38 @@ public:
         }
         // Gradient modulation in quantised units per voxel.
         grad_scale_ = float((hi_ - lo_) / (kLutSize - 1));
+        // Second level: macro bricks of kMacro^3 bricks, and the box around everything visible.
+        // Rays start at that box and cross empty regions in macro steps: a 256^3 volume is
+        // otherwise ~60 brick crossings per ray before the first sample.
+        nm_ = {(nb_[0] + kMacro - 1) / kMacro, (nb_[1] + kMacro - 1) / kMacro, (nb_[2] + kMacro - 1) / kMacro};
+        macro_visible_.assign(size_t(nm_[0]) * nm_[1] * nm_[2], 0);
+        std::array<int, 3> lo{nb_[0], nb_[1], nb_[2]}, hi{-1, -1, -1};
+        for (int bz = 0; bz < nb_[2]; ++bz)
+            for (int by = 0; by < nb_[1]; ++by)
+                for (int bx = 0; bx < nb_[0]; ++bx)
+                    if (brick_visible_[(size_t(bz) * nb_[1] + by) * nb_[0] + bx]) {
+                        macro_visible_[(size_t(bz / kMacro) * nm_[1] + by / kMacro) * nm_[0] + bx / kMacro] = 1;
+                        lo = {std::min(lo[0], bx), std::min(lo[1], by), std::min(lo[2], bz)};
+                        hi = {std::max(hi[0], bx), std::max(hi[1], by), std::max(hi[2], bz)};
+                    }
+        for (int a = 0; a < 3; ++a) {
+            box_lo_[a] = hi[a] < 0 ? 0.f : float(std::max(0, lo[a] * kBrick - 1));
+            box_hi_[a] = hi[a] < 0 ? -1.f : float(std::min(geom_.dims[a] - 1, (hi[a] + 1) * kBrick + 1)) - 1e-3f;
+        }
+        alpha_step_for_ = -1.0;
     }
 
     const char* name() const override { return "cpu"; }
 
     void render(const Intrinsics& K, const Pose& T, const RenderOptions& opt, RenderImage& out) override {
+        if (alpha_step_for_ != opt.sample_distance_mm) {
+            alpha_step_.resize(kLutSize);
+            for (int i = 0; i < kLutSize; ++i) {
+                const double a = baked_.rgba[size_t(i)][3];
+                alpha_step_[size_t(i)] = a >= 1.0 ? 1.f : float(1.0 - std::pow(1.0 - a, opt.sample_distance_mm));
+            }
+            alpha_step_for_ = opt.sample_distance_mm;
+        }
         if (rays_.size() != size_t(K.width) * K.height || K.fx != rays_K_.fx || K.fy != rays_K_.fy || K.cx != rays_K_.cx ||
             K.cy != rays_K_.cy || K.distortion != rays_K_.distortion || K.width != rays_K_.width) {
             rays_ = pixel_rays(K);
@@ -162,12 +190,12 @@ private:
         // Clip the ray against the volume box [0, d-1) in index space.
         float t0 = 0.f, t1 = std::numeric_limits<float>::max();
         for (int a = 0; a < 3; ++a) {
-            const float hi = float(geom_.dims[a] - 1) - 1e-3f;
+            const float lo = box_lo_[a], hi = box_hi_[a];
             if (std::abs(dir_index[a]) < 1e-12f) {
-                if (o[a] < 0.f || o[a] > hi) { t1 = -1.f; break; }
+                if (o[a] < lo || o[a] > hi) { t1 = -1.f; break; }
                 continue;
             }
-            float ta = (0.f - o[a]) / dir_index[a], tb = (hi - o[a]) / dir_index[a];
+            float ta = (lo - o[a]) / dir_index[a], tb = (hi - o[a]) / dir_index[a];
             if (ta > tb) std::swap(ta, tb);
             t0 = std::max(t0, ta);
             t1 = std::min(t1, tb);
@@ -186,15 +214,17 @@ private:
             while (t <= t1) {
                 const float x = o.x() + t * dir_index.x(), y = o.y() + t * dir_index.y(), z = o.z() + t * dir_index.z();
                 const int bx = int(x) / kBrick, by = int(y) / kBrick, bz = int(z) / kBrick;
-                if (!brick_visible_[(size_t(bz) * nb_[1] + by) * nb_[0] + bx]) {
-                    // Jump to where the ray leaves this brick, on the sample lattice.
+                const bool macro_empty = !macro_visible_[(size_t(bz / kMacro) * nm_[1] + by / kMacro) * nm_[0] + bx / kMacro];
+                if (macro_empty || !brick_visible_[(size_t(bz) * nb_[1] + by) * nb_[0] + bx]) {
+                    // Jump to where the ray leaves this (macro) brick, on the sample lattice.
+                    const int edge = macro_empty ? kBrick * kMacro : kBrick;
                     float texit = t1;
                     const float p[3] = {x, y, z};
-                    const int bi[3] = {bx, by, bz};
+                    const int bi[3] = {int(x) / edge, int(y) / edge, int(z) / edge};
                     for (int a = 0; a < 3; ++a) {
                         const float da = dir_index[a];
-                        if (da > 1e-12f) texit = std::min(texit, t + (float((bi[a] + 1) * kBrick) - p[a]) / da);
-                        else if (da < -1e-12f) texit = std::min(texit, t + (float(bi[a] * kBrick) - p[a]) / da);
+                        if (da > 1e-12f) texit = std::min(texit, t + (float((bi[a] + 1) * edge) - p[a]) / da);
+                        else if (da < -1e-12f) texit = std::min(texit, t + (float(bi[a] * edge) - p[a]) / da);
                     }
                     const float tn = std::ceil(texit / step + 1e-4f) * step;
                     t = std::max(tn, t + step);
@@ -221,7 +251,8 @@ private:
                             shade = float(opt.ambient) + float(opt.diffuse) * lambert;
                         }
                     }
-                    const float a_step = a >= 1.f ? 1.f : 1.f - std::pow(1.f - a, step);
+                    // Opacity per mm -> per step (table for the unmodulated case).
+                    const float a_step = grad_op ? (a >= 1.f ? 1.f : 1.f - std::pow(1.f - a, step)) : alpha_step_[size_t(li)];
                     const float wgt = (1.f - alpha) * a_step;
                     r += wgt * e[0] * shade;
                     g += wgt * e[1] * shade;
@@ -256,6 +287,11 @@ private:
     std::array<int, 3> nb_{};
     std::vector<uint16_t> brick_min_, brick_max_;
     std::vector<uint8_t> brick_visible_;
+    std::array<int, 3> nm_{};
+    std::vector<uint8_t> macro_visible_;
+    std::array<float, 3> box_lo_{}, box_hi_{};  // index-space box around all visible bricks
+    std::vector<float> alpha_step_;            // opacity per sample step, per LUT entry
+    double alpha_step_for_ = -1.0;              // the step alpha_step_ was made for
     BakedTransferFunction baked_;
     float grad_scale_ = 1.f;
     Eigen::Matrix4f index_from_world_;

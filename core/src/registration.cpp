@@ -266,16 +266,19 @@ RegistrationResult Registration::run(const PhotoInput& in, const Progress* progr
         throw InputError("photo", "size " + std::to_string(in.photo_bgr.cols) + "x" + std::to_string(in.photo_bgr.rows) +
                                       " does not match the camera's aspect ratio " + std::to_string(K.width) + "x" + std::to_string(K.height));
 
-    // Initial pose.
+    // Initial pose; from landmarks, the other poses that fit them about as well become extra
+    // starts (the mirror ambiguity of near-planar landmarks is settled by the image).
     Pose T0;
+    std::vector<Pose> alternatives;
     if (in.initial_pose) {
         T0 = *in.initial_pose;
         res.initial_method = "initial_pose";
     } else {
         if (in.landmarks.size() < 4) throw InputError("landmarks", "needs at least 4 pairs or an initial pose");
-        const LandmarkFit fit = fit_pose_pnp(in.landmarks, K);
-        T0 = fit.T_camera_from_world;
-        res.initial_method = fit.method;
+        const auto fits = pnp_candidates(in.landmarks, K);
+        T0 = fits.front().T_camera_from_world;
+        res.initial_method = fits.front().method;
+        for (size_t i = 1; i < fits.size(); ++i) alternatives.push_back(fits[i].T_camera_from_world);
     }
     res.initial_T_camera_from_world = T0;
     const bool use_prior = params_.landmark_prior_weight > 0 && in.landmarks.size() >= 4;
@@ -340,13 +343,15 @@ RegistrationResult Registration::run(const PhotoInput& in, const Progress* progr
     }
     const Eigen::Vector3d pivot_cam = T0.topLeftCorner<3, 3>() * res.pivot_world_mm + T0.topRightCorner<3, 1>();
     const double depth_mm = pivot_cam.z();
+    std::vector<PoseParams> starts = params_.starts;
+    for (const Pose& A : alternatives) starts.push_back(params_between(T0, A, pivot_cam));
 
     Similarity sim(params_.bins);
     const SimilarityMetric metric = metric_from_name(params_.metric);
     RenderImage img;
     cv::Mat rendered, rendered_blur, photo_blur;
     int total_budget = 0;
-    for (const auto& s : params_.search_stages) total_budget += s.max_evaluations * int(params_.starts.size());
+    for (const auto& s : params_.search_stages) total_budget += s.max_evaluations * int(starts.size());
     for (const auto& s : params_.final_stages) total_budget += s.max_evaluations * params_.keep_best;
     int evals_done = 0;
 
@@ -426,8 +431,8 @@ RegistrationResult Registration::run(const PhotoInput& in, const Progress* progr
         double cost;
     };
     std::vector<Candidate> candidates;
-    for (size_t s = 0; s < params_.starts.size(); ++s) {
-        PoseParams x = params_.starts[s];
+    for (size_t s = 0; s < starts.size(); ++s) {
+        PoseParams x = starts[s];
         double cost = 0, best_sim = 0;
         if (params_.search_stages.empty()) {
             candidates.push_back({x, 0});

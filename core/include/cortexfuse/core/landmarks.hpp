@@ -18,6 +18,11 @@ struct LandmarkFit {
 /// OpenCV solvePnP (SQPnP, refined by Levenberg-Marquardt); RANSAC from 6 pairs on.
 /// Throws InputError when no pose puts the points in front of the camera.
 LandmarkFit fit_pose_pnp(const std::vector<Landmark>& lms, const Intrinsics& K);
+/// Distinct poses that explain the landmarks about as well as the best one: near-planar
+/// cortical landmarks with picking noise leave PnP a mirror ambiguity (the surface tilted one
+/// way or the other), which only the image can settle. Best first; each refined by LM.
+std::vector<LandmarkFit> pnp_candidates(const std::vector<Landmark>& lms, const Intrinsics& K,
+                                        double min_separation_deg = 5.0);
 /// The seed's scaled-orthographic variant (affine camera, then orthonormalised), for comparison.
 LandmarkFit fit_pose_orthographic(const std::vector<Landmark>& lms, const Intrinsics& K);
 double reprojection_rms_px(const std::vector<Landmark>& lms, const Intrinsics& K, const Pose& T);
