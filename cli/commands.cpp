@@ -24,6 +24,7 @@ int guarded(const char* command, const std::function<int()>& body) {
 void add_commands(CLI::App& app) {
     add_register(app);
     add_render(app);
+    add_evaluate(app);
     add_skullstrip(app);
     add_phantom(app);
 }

@@ -1,0 +1,61 @@
+#pragma once
+// Skull stripping of a T1-weighted head MRI: a binary brain mask (brain + the CSF in sulci and
+// ventricles, smooth outer envelope) so the ray caster shows the brain, not the scalp.
+// Method and measured accuracy: docs/skull-stripping.md.
+#include <filesystem>
+
+#include "cortexfuse/core/progress.hpp"
+#include "cortexfuse/core/volume.hpp"
+
+namespace cf {
+
+/// Tuning of skull_strip(). The defaults are what was validated (docs/skull-stripping.md);
+/// every field is range-checked (InputError naming the field).
+struct SkullStripParams {
+    /// Background level = p2 + background_frac * (p98 - p2) of all voxels (as FSL BET). [0.01, 0.5]
+    double background_frac = 0.1;
+    /// Brain-tissue threshold between the CSF and GM class means found at the head centre:
+    /// csf + tissue_split * (gm - csf). Low, because cortex is darker than the central GM/WM
+    /// mix the class means come from (bias field, partial volume). [-2, 1]
+    double tissue_split = 0.25;
+    /// Upper tissue threshold wm + bright_limit * (wm - gm): cuts bright scalp fat and marrow. [0.2, 20]
+    double bright_limit = 2.0;
+    /// Erosion radius that disconnects brain tissue from scalp and dura before the brain
+    /// component is picked; larger is safer against bridges but loses thin gyri. [0.5, 20]
+    double erode_mm = 2.0;
+    /// Closing radius: fills sulci and smooths the envelope; 0 = no closing. [0, 30]
+    double close_mm = 8.0;
+    /// Extra-axial CSF threshold, between bone (darkest) and CSF: csf + csf_split * (gm - csf). [-2, 1]
+    double csf_split = -0.6;
+    /// How far beyond the brain envelope the CSF growth may reach (up to the inner table of the
+    /// skull); also what stops it from leaking through the skull base. 0 = tight brain mask. [0, 20]
+    double csf_margin_mm = 6.0;
+    /// Final dilation (negative: erosion) of the mask. [-10, 10]
+    double final_dilate_mm = 0.0;
+    /// Plausible mask volume; outside it the input is refused as "not a T1 head". Max in [min, 1e6]
+    double min_brain_ml = 500.0;
+    double max_brain_ml = 2500.0;
+};
+
+/// What skull_strip() found (for logs, tuning and the CLI's --json).
+struct SkullStripInfo {
+    double p02 = 0, p98 = 0;                      // robust intensity range of the volume
+    double t_background = 0, t_low = 0, t_high = 0, t_csf = 0;  // thresholds used, volume units
+    double csf = 0, gm = 0, wm = 0;               // tissue class means at the head centre
+    double head_ml = 0, brain_ml = 0;
+};
+
+/// Brain mask of a T1 head volume with skull (any intensity range: uint8, int16, scaled),
+/// on the grid of `t1`. Reports progress and honours cancellation between steps (throws
+/// cf::Cancelled). Throws cf::InputError when the volume holds no head or no brain-like region.
+/// Re-entrant. Takes ~2-5 s for a 1 mm 256^3 head on 2 cores.
+LabelVolume skull_strip(const Volume& t1, const SkullStripParams& p = {}, const Progress* progress = nullptr,
+                        SkullStripInfo* info = nullptr);
+
+/// A check image of a mask over its volume: a 3x3 PNG montage (rows axial, coronal, sagittal;
+/// three slices each through the mask), radiological display (patient right on image left),
+/// mask contour in red and, when given, a reference mask contour in green. Throws InputError.
+void write_mask_check_png(const Volume& v, const LabelVolume& mask, const std::filesystem::path& png,
+                          const LabelVolume* reference = nullptr);
+
+}  // namespace cf

@@ -1,0 +1,42 @@
+#pragma once
+// Bridge to the ITK skull-stripping pipeline (itk_skull_strip.cpp). Plain types only: ITK 5.2's
+// bundled Eigen clashes with the system Eigen, so this header must never include Eigen.
+#include <cstdint>
+#include <functional>
+#include <vector>
+
+#include "itk_bridge.hpp"
+
+namespace cf::itkb {
+
+/// Mirrors cf::SkullStripParams (documented there).
+struct SkullStripConfig {
+    double background_frac = 0.1;
+    double csf_gm_split = 0.25;
+    double csf_split = -0.6;
+    double csf_margin_mm = 6.0;
+    double bright_limit = 2.0;
+    double erode_mm = 2.0;
+    double close_mm = 8.0;
+    double final_dilate_mm = 0.0;
+    double min_brain_ml = 500.0;
+    double max_brain_ml = 2500.0;
+};
+
+/// What the pipeline found, for logs and tuning.
+struct SkullStripReport {
+    double p02 = 0, p98 = 0;                  // robust intensity range of the volume
+    double t_background = 0, t_low = 0, t_high = 0, t_csf = 0;
+    double csf = 0, gm = 0, wm = 0;           // class means in the central sphere
+    double head_ml = 0, brain_ml = 0;
+};
+
+/// Called between steps with a stage name and the fraction done; may throw (cancellation).
+using StepFn = std::function<void(const char* stage, double fraction)>;
+
+/// Binary brain mask (0/1) of a T1 head on `grid` (only dims and spacing are used).
+/// Throws cf::InputError when no head or no brain-like region is found.
+void skull_strip_mask(const Grid& grid, const float* voxels, const SkullStripConfig& cfg,
+                      const StepFn& step, std::vector<uint8_t>& mask, SkullStripReport& report);
+
+}  // namespace cf::itkb

@@ -1,0 +1,188 @@
+// Public skull-stripping API over the ITK pipeline (itk_skull_strip.cpp), and its check image.
+#include "cortexfuse/core/skull_strip.hpp"
+
+#include <algorithm>
+#include <array>
+#include <cmath>
+#include <opencv2/core.hpp>
+#include <opencv2/imgcodecs.hpp>
+#include <opencv2/imgproc.hpp>
+
+#include "cortexfuse/core/error.hpp"
+#include "itk_skull_strip.hpp"
+
+namespace cf {
+
+LabelVolume skull_strip(const Volume& t1, const SkullStripParams& p, const Progress* progress,
+                        SkullStripInfo* info) {
+    if (t1.voxels.size() != t1.geom.voxel_count() || t1.voxels.empty())
+        throw InputError("skull strip", "volume voxels do not match its dimensions");
+    itkb::Grid grid;
+    grid.dims = t1.geom.dims;
+    for (int a = 0; a < 3; ++a) grid.spacing[a] = t1.geom.spacing_mm[a];
+    // Only dims and spacing matter: the pipeline works in index space with mm distances.
+    itkb::SkullStripConfig cfg;
+    cfg.background_frac = p.background_frac;
+    cfg.csf_gm_split = p.tissue_split;
+    cfg.csf_split = p.csf_split;
+    cfg.csf_margin_mm = p.csf_margin_mm;
+    cfg.bright_limit = p.bright_limit;
+    cfg.erode_mm = p.erode_mm;
+    cfg.close_mm = p.close_mm;
+    cfg.final_dilate_mm = p.final_dilate_mm;
+    cfg.min_brain_ml = p.min_brain_ml;
+    cfg.max_brain_ml = p.max_brain_ml;
+
+    const itkb::StepFn step = [progress](const char* stage, double fraction) {
+        if (!progress) return;
+        progress->check();
+        (*progress)(std::string("skull strip: ") + stage, fraction);
+    };
+    LabelVolume out;
+    out.geom = t1.geom;
+    itkb::SkullStripReport rep;
+    itkb::skull_strip_mask(grid, t1.voxels.data(), cfg, step, out.voxels, rep);
+    if (info) {
+        info->p02 = rep.p02;
+        info->p98 = rep.p98;
+        info->t_background = rep.t_background;
+        info->t_low = rep.t_low;
+        info->t_high = rep.t_high;
+        info->t_csf = rep.t_csf;
+        info->csf = rep.csf;
+        info->gm = rep.gm;
+        info->wm = rep.wm;
+        info->head_ml = rep.head_ml;
+        info->brain_ml = rep.brain_ml;
+    }
+    return out;
+}
+
+namespace {
+
+// Maps the volume's voxel axes onto the patient axes (L, P, S of LPS world) by the nearest
+// direction cosine, so the check image shows standard views whatever the file orientation.
+struct PatientAxes {
+    std::array<int, 3> axis{0, 1, 2};  // voxel axis along world axis w
+    std::array<bool, 3> flip{false, false, false};
+    std::array<int, 3> n{0, 0, 0};     // voxels along world axis w
+    std::array<double, 3> spacing_mm{1, 1, 1};
+
+    explicit PatientAxes(const VolumeGeometry& g) {
+        std::array<bool, 3> used{false, false, false};
+        for (int w = 0; w < 3; ++w) {
+            int best = -1;
+            for (int a = 0; a < 3; ++a)
+                if (!used[a] && (best < 0 || std::abs(g.direction(w, a)) > std::abs(g.direction(w, best)))) best = a;
+            used[best] = true;
+            axis[w] = best;
+            flip[w] = g.direction(w, best) < 0;
+            n[w] = g.dims[best];
+            spacing_mm[w] = g.spacing_mm[best];
+        }
+    }
+    // Voxel linear index of patient-ordered index x (x[w] grows towards L, P, S).
+    size_t linear(const VolumeGeometry& g, const std::array<int, 3>& x) const {
+        std::array<int, 3> ijk{};
+        for (int w = 0; w < 3; ++w) ijk[axis[w]] = flip[w] ? n[w] - 1 - x[w] : x[w];
+        return g.linear(ijk[0], ijk[1], ijk[2]);
+    }
+};
+
+}  // namespace
+
+void write_mask_check_png(const Volume& v, const LabelVolume& mask, const std::filesystem::path& png,
+                          const LabelVolume* reference) {
+    const std::string name = png.string();
+    if (!v.geom.same_grid(mask.geom) || mask.voxels.size() != v.voxels.size())
+        throw InputError(name, "mask and volume are not on the same grid");
+    if (reference && (!v.geom.same_grid(reference->geom) || reference->voxels.size() != v.voxels.size()))
+        throw InputError(name, "reference mask and volume are not on the same grid");
+    const PatientAxes pa(v.geom);
+
+    // Display window from robust percentiles (any intensity range).
+    std::vector<float> s;
+    const size_t stride = std::max<size_t>(1, v.voxels.size() / 1'000'000);
+    for (size_t i = 0; i < v.voxels.size(); i += stride) s.push_back(v.voxels[i]);
+    std::sort(s.begin(), s.end());
+    const double lo = s[size_t(0.01 * double(s.size() - 1))], hi = s[size_t(0.995 * double(s.size() - 1))];
+    const double scale = hi > lo ? 255.0 / (hi - lo) : 1.0;
+
+    // Mask extent along each patient axis, to place slices at 30/50/70 % through it.
+    std::array<int, 3> mlo{pa.n}, mhi{-1, -1, -1};
+    for (int z = 0; z < pa.n[2]; ++z)
+        for (int y = 0; y < pa.n[1]; ++y)
+            for (int x = 0; x < pa.n[0]; ++x)
+                if (mask.voxels[pa.linear(v.geom, {x, y, z})]) {
+                    const std::array<int, 3> p{x, y, z};
+                    for (int w = 0; w < 3; ++w) {
+                        mlo[w] = std::min(mlo[w], p[w]);
+                        mhi[w] = std::max(mhi[w], p[w]);
+                    }
+                }
+    for (int w = 0; w < 3; ++w)
+        if (mhi[w] < 0) {  // empty mask: slices through the middle
+            mlo[w] = 0;
+            mhi[w] = pa.n[w] - 1;
+        }
+
+    constexpr int kPanel = 300;  // pixels per panel side
+    cv::Mat montage(3 * kPanel, 3 * kPanel, CV_8UC3, cv::Scalar(0, 0, 0));
+    const char* view_names[3] = {"axial", "coronal", "sagittal"};
+    for (int view = 0; view < 3; ++view) {
+        // view 0 axial: cols L (patient right on the left), rows P (anterior up); slice axis S.
+        // view 1 coronal: cols L, rows S flipped (superior up); slice axis P.
+        // view 2 sagittal: cols P (anterior on the left), rows S flipped; slice axis L.
+        const int col_w = view == 2 ? 1 : 0;
+        const int row_w = view == 0 ? 1 : 2;
+        const int slice_w = view == 0 ? 2 : (view == 1 ? 1 : 0);
+        const bool row_flip = view != 0;
+        for (int c = 0; c < 3; ++c) {
+            const double frac = 0.3 + 0.2 * c;
+            const int sl = int(std::lround(mlo[slice_w] + frac * (mhi[slice_w] - mlo[slice_w])));
+            cv::Mat gray(pa.n[row_w], pa.n[col_w], CV_8U), m(gray.size(), CV_8U), r(gray.size(), CV_8U);
+            for (int row = 0; row < gray.rows; ++row)
+                for (int col = 0; col < gray.cols; ++col) {
+                    std::array<int, 3> x{};
+                    x[slice_w] = sl;
+                    x[col_w] = col;
+                    x[row_w] = row_flip ? pa.n[row_w] - 1 - row : row;
+                    const size_t li = pa.linear(v.geom, x);
+                    gray.at<uint8_t>(row, col) = cv::saturate_cast<uint8_t>((v.voxels[li] - lo) * scale);
+                    m.at<uint8_t>(row, col) = mask.voxels[li] ? 255 : 0;
+                    r.at<uint8_t>(row, col) = reference && reference->voxels[li] ? 255 : 0;
+                }
+            // Square pixels in mm, fitted into the panel.
+            const double w_mm = pa.n[col_w] * pa.spacing_mm[col_w], h_mm = pa.n[row_w] * pa.spacing_mm[row_w];
+            const double px_per_mm = double(kPanel) / std::max(w_mm, h_mm);
+            const cv::Size size(std::max(1, int(w_mm * px_per_mm)), std::max(1, int(h_mm * px_per_mm)));
+            cv::Mat g2, m2, r2, rgb;
+            cv::resize(gray, g2, size, 0, 0, cv::INTER_LINEAR);
+            cv::resize(m, m2, size, 0, 0, cv::INTER_NEAREST);
+            cv::resize(r, r2, size, 0, 0, cv::INTER_NEAREST);
+            cv::cvtColor(g2, rgb, cv::COLOR_GRAY2BGR);
+            std::vector<std::vector<cv::Point>> contours;
+            if (reference) {
+                cv::findContours(r2, contours, cv::RETR_LIST, cv::CHAIN_APPROX_NONE);
+                cv::drawContours(rgb, contours, -1, cv::Scalar(0, 220, 0), 1);
+            }
+            cv::findContours(m2, contours, cv::RETR_LIST, cv::CHAIN_APPROX_NONE);
+            cv::drawContours(rgb, contours, -1, cv::Scalar(0, 0, 255), 1);
+            const cv::Rect roi(c * kPanel + (kPanel - size.width) / 2, view * kPanel + (kPanel - size.height) / 2,
+                               size.width, size.height);
+            rgb.copyTo(montage(roi));
+            cv::putText(montage, std::string(view_names[view]) + " " + std::to_string(sl),
+                        cv::Point(c * kPanel + 4, view * kPanel + 14), cv::FONT_HERSHEY_SIMPLEX, 0.45,
+                        cv::Scalar(0, 255, 255), 1);
+        }
+    }
+    cv::putText(montage, reference ? "red: mask  green: reference  (R on left)" : "red: mask  (R on left)",
+                cv::Point(4, 3 * kPanel - 6), cv::FONT_HERSHEY_SIMPLEX, 0.45, cv::Scalar(0, 255, 255), 1);
+    try {
+        if (!cv::imwrite(name, montage)) throw InputError(name, "cannot write the check image");
+    } catch (const cv::Exception& e) {
+        throw InputError(name, std::string("cannot write the check image: ") + e.what());
+    }
+}
+
+}  // namespace cf
