@@ -25,6 +25,7 @@ void add_commands(CLI::App& app) {
     add_register(app);
     add_render(app);
     add_evaluate(app);
+    add_landscape(app);
     add_skullstrip(app);
     add_phantom(app);
 }

@@ -105,6 +105,12 @@ public:
             box_hi_[a] = hi[a] < 0 ? -1.f : float(std::min(geom_.dims[a] - 1, (hi[a] + 1) * kBrick + 1)) - 1e-3f;
         }
         alpha_step_for_ = -1.0;
+        iso_q_ = -1.f;
+        for (int i = 0; i < kLutSize; ++i)
+            if (baked_.rgba[size_t(i)][3] >= 0.5f) {
+                iso_q_ = float(i) - 0.5f;
+                break;
+            }
     }
 
     const char* name() const override { return "cpu"; }
@@ -201,7 +207,7 @@ private:
             t1 = std::min(t1, tb);
         }
         float r = 0, g = 0, b = 0, alpha = 0, depth = 0;
-        bool hit = false;
+        bool hit = false, refined = false;
         const float step = float(opt.sample_distance_mm);
         const float term = float(opt.early_termination_alpha);
         const float cov = float(opt.coverage_alpha);
@@ -212,15 +218,15 @@ private:
             const float lut_scale = 1.f;
             const bool grad_op = baked_.uses_gradient();
             while (t <= t1) {
-                const float x = o.x() + t * dir_index.x(), y = o.y() + t * dir_index.y(), z = o.z() + t * dir_index.z();
-                const int bx = int(x) / kBrick, by = int(y) / kBrick, bz = int(z) / kBrick;
+                const float x0 = o.x() + t * dir_index.x(), y0 = o.y() + t * dir_index.y(), z0 = o.z() + t * dir_index.z();
+                const int bx = int(x0) / kBrick, by = int(y0) / kBrick, bz = int(z0) / kBrick;
                 const bool macro_empty = !macro_visible_[(size_t(bz / kMacro) * nm_[1] + by / kMacro) * nm_[0] + bx / kMacro];
                 if (macro_empty || !brick_visible_[(size_t(bz) * nb_[1] + by) * nb_[0] + bx]) {
                     // Jump to where the ray leaves this (macro) brick, on the sample lattice.
                     const int edge = macro_empty ? kBrick * kMacro : kBrick;
                     float texit = t1;
-                    const float p[3] = {x, y, z};
-                    const int bi[3] = {int(x) / edge, int(y) / edge, int(z) / edge};
+                    const float p[3] = {x0, y0, z0};
+                    const int bi[3] = {int(x0) / edge, int(y0) / edge, int(z0) / edge};
                     for (int a = 0; a < 3; ++a) {
                         const float da = dir_index[a];
                         if (da > 1e-12f) texit = std::min(texit, t + (float((bi[a] + 1) * edge) - p[a]) / da);
@@ -230,11 +236,31 @@ private:
                     t = std::max(tn, t + step);
                     continue;
                 }
-                const float s = sample(x, y, z) * lut_scale;
+                const float s = sample(x0, y0, z0) * lut_scale;
                 const int li = int(s + 0.5f);
                 const auto& e = baked_.rgba[size_t(li)];
                 float a = e[3];
                 if (a > 0.f) {
+                    float x = x0, y = y0, z = z0, t_at = t;
+                    if (!refined && iso_q_ >= 0.f && s >= iso_q_) {
+                        // The first crossing of the surface level: find it between this sample and
+                        // the last by bisection, and shade and measure depth there. Without this,
+                        // depth and shading jump with the camera in sample-distance steps, and
+                        // the similarity landscape turns jagged.
+                        refined = true;
+                        float ta = t - step, tb = t;
+                        for (int it = 0; it < 6; ++it) {
+                            const float tm = 0.5f * (ta + tb);
+                            if (sample_clamped(o.x() + tm * dir_index.x(), o.y() + tm * dir_index.y(), o.z() + tm * dir_index.z()) >= iso_q_)
+                                tb = tm;
+                            else
+                                ta = tm;
+                        }
+                        t_at = tb;
+                        x = o.x() + tb * dir_index.x();
+                        y = o.y() + tb * dir_index.y();
+                        z = o.z() + tb * dir_index.z();
+                    }
                     // Opacity per mm -> per step.
                     float shade = 1.f;
                     if (opt.shading || grad_op) {
@@ -260,7 +286,7 @@ private:
                     alpha += wgt;
                     if (!hit && alpha >= cov) {
                         hit = true;
-                        const Eigen::Vector3f pw = f.cam_world + t * dir_world;
+                        const Eigen::Vector3f pw = f.cam_world + t_at * dir_world;
                         depth = f.cam_z_axis_world.dot(pw) + f.cam_t_z;
                     }
                     if (alpha >= term) break;
@@ -292,6 +318,7 @@ private:
     std::array<float, 3> box_lo_{}, box_hi_{};  // index-space box around all visible bricks
     std::vector<float> alpha_step_;            // opacity per sample step, per LUT entry
     double alpha_step_for_ = -1.0;              // the step alpha_step_ was made for
+    float iso_q_ = -1.f;  // quantised level where opacity reaches 0.5: the surface hits are refined to it
     BakedTransferFunction baked_;
     float grad_scale_ = 1.f;
     Eigen::Matrix4f index_from_world_;

@@ -249,9 +249,120 @@ struct Level {
     Intrinsics K;
     PhotoChannel photo;
     double scale = 1;  // working px per camera px
+    cv::Mat photo_blur;        // photo channel blurred for `blurred_fwhm_mm`
+    double blurred_fwhm_mm = -1;
+};
+
+/// Renders a pose and scores it against the photo at a stage's size and blur. Working levels
+/// (one per image width) are made once and reused; buffers are reused across evaluations.
+class Scorer {
+public:
+    Scorer(const PhotoInput& in, const RegistrationParams& p, Renderer& r)
+        : in_(in), p_(p), renderer_(r), sim_(p.bins), metric_(metric_from_name(p.metric)) {
+        ropt_.sample_distance_mm = p.sample_distance_mm;
+        ropt_.want_rgb = false;
+        ropt_.want_depth = true;
+    }
+
+    Level& level(int width) {
+        auto it = levels_.find(width);
+        if (it != levels_.end()) return it->second;
+        const Intrinsics& K = in_.camera;
+        Level L;
+        const int w = std::min(width, K.width);
+        const int h = std::max(8, int(std::lround(double(K.height) * w / K.width)));
+        L.K = K.resized(w, h);
+        L.scale = double(w) / K.width;
+        cv::Mat small;
+        cv::resize(in_.photo_bgr, small, cv::Size(w, h), 0, 0, cv::INTER_AREA);
+        cv::Mat roi = in_.roi ? roi_mask(*in_.roi, w, h, L.scale) : cv::Mat();
+        L.photo = photo_channel(small, p_.photo_channel, p_.mask_glare, roi);
+        if (cv::countNonZero(L.photo.valid) < 50)
+            throw InputError("photo", "fewer than 50 usable pixels in the ROI at " + std::to_string(w) + " px width (all glare or drapes?)");
+        return levels_.emplace(width, std::move(L)).first->second;
+    }
+
+    /// Where the ROI's centre meets the brain surface at T0 (landmark centroid as fallback).
+    Eigen::Vector3d find_pivot_world(const Pose& T0) {
+        Level& L = level(kPivotWidthPx);
+        renderer_.render(L.K, T0, ropt_, img_);
+        std::vector<float> depths;
+        double su = 0, sv = 0;
+        size_t n = 0;
+        for (int v = 0; v < L.K.height; ++v)
+            for (int u = 0; u < L.K.width; ++u) {
+                const size_t i = size_t(v) * L.K.width + u;
+                if (!L.photo.valid.at<uint8_t>(v, u) && in_.roi) continue;
+                su += u;
+                sv += v;
+                ++n;
+                if (img_.coverage[i]) depths.push_back(img_.depth_mm[i]);
+            }
+        Eigen::Vector3d pivot_cam;
+        if (depths.size() > 20 && n > 0) {
+            std::nth_element(depths.begin(), depths.begin() + long(depths.size() / 2), depths.end());
+            pivot_cam = backproject(L.K, Eigen::Vector2d(su / n, sv / n), depths[depths.size() / 2]);
+        } else if (!in_.landmarks.empty()) {
+            Eigen::Vector3d c = Eigen::Vector3d::Zero();
+            for (const auto& l : in_.landmarks) c += l.world_mm;
+            c /= double(in_.landmarks.size());
+            pivot_cam = T0.topLeftCorner<3, 3>() * c + T0.topRightCorner<3, 1>();
+        } else {
+            throw InputError("initial pose", "the brain is not in view of the camera at the initial pose");
+        }
+        const Eigen::Matrix4d Tinv = T0.inverse();
+        return Tinv.topLeftCorner<3, 3>() * pivot_cam + Tinv.topRightCorner<3, 1>();
+    }
+
+    /// The depth at which blur FWHM in mm is converted to pixels.
+    void set_depth(double depth_mm) { depth_mm_ = depth_mm; }
+
+    double similarity(const Pose& T, const StageParams& st) {
+        Level& L = level(st.render_width_px);
+        if (L.blurred_fwhm_mm != st.fwhm_mm) {
+            blur_fwhm_mm(L.photo.channel, L.photo_blur, st.fwhm_mm, L.K.fx, depth_mm_);
+            L.blurred_fwhm_mm = st.fwhm_mm;
+        }
+        renderer_.render(L.K, T, ropt_, img_);
+        const cv::Mat rendered(L.K.height, L.K.width, CV_32F, img_.grey.data());
+        blur_fwhm_mm(rendered, rendered_blur_, st.fwhm_mm, L.K.fx, depth_mm_);
+        return sim_.evaluate(metric_, rendered_blur_, L.photo_blur, L.photo.valid);
+    }
+
+private:
+    const PhotoInput& in_;
+    const RegistrationParams& p_;
+    Renderer& renderer_;
+    Similarity sim_;
+    SimilarityMetric metric_;
+    RenderOptions ropt_;
+    std::map<int, Level> levels_;
+    RenderImage img_;
+    cv::Mat rendered_blur_;
+    double depth_mm_ = 300;
 };
 
 }  // namespace
+
+SimilaritySweep Registration::sweep(const PhotoInput& in, const Pose& T_center, const StageParams& stage, double range_mm,
+                                    double range_deg, int steps) {
+    Scorer scorer(in, params_, *renderer_);
+    SimilaritySweep out;
+    out.pivot_world_mm = scorer.find_pivot_world(T_center);
+    const Eigen::Vector3d pivot_cam = T_center.topLeftCorner<3, 3>() * out.pivot_world_mm + T_center.topRightCorner<3, 1>();
+    scorer.set_depth(pivot_cam.z());
+    steps = std::max(steps, 3);
+    for (int p = 0; p < 6; ++p) {
+        const double range = p < 3 ? range_deg : range_mm;
+        for (int i = 0; i < steps; ++i) {
+            PoseParams x{0, 0, 0, 0, 0, 0};
+            x[size_t(p)] = -range + 2 * range * i / (steps - 1);
+            out.offsets[size_t(p)].push_back(x[size_t(p)]);
+            out.similarity[size_t(p)].push_back(scorer.similarity(apply_params(T_center, pivot_cam, x), stage));
+        }
+    }
+    return out;
+}
 
 RegistrationResult Registration::run(const PhotoInput& in, const Progress* progress) {
     const auto t_start = Clock::now();
@@ -286,70 +397,13 @@ RegistrationResult Registration::run(const PhotoInput& in, const Progress* progr
     if (use_prior) rms_landmark_fit = fit_pose_pnp(in.landmarks, K).rms_px;
     res.initial_landmark_rms_px = reprojection_rms_px(in.landmarks, K, T0);
 
-    // Working levels, one per distinct width, photo downsampled once each.
-    std::map<int, Level> levels;
-    auto level = [&](int width) -> Level& {
-        auto it = levels.find(width);
-        if (it != levels.end()) return it->second;
-        Level L;
-        const int w = std::min(width, K.width);
-        const int h = std::max(8, int(std::lround(double(K.height) * w / K.width)));
-        L.K = K.resized(w, h);
-        L.scale = double(w) / K.width;
-        cv::Mat small;
-        cv::resize(in.photo_bgr, small, cv::Size(w, h), 0, 0, cv::INTER_AREA);
-        cv::Mat roi = in.roi ? roi_mask(*in.roi, w, h, L.scale) : cv::Mat();
-        L.photo = photo_channel(small, params_.photo_channel, params_.mask_glare, roi);
-        if (cv::countNonZero(L.photo.valid) < 50)
-            throw InputError("photo", "fewer than 50 usable pixels in the ROI at " + std::to_string(w) + " px width (all glare or drapes?)");
-        return levels.emplace(width, std::move(L)).first->second;
-    };
-
-    // Pivot: where the ROI's centre meets the brain surface at T0.
-    RenderOptions ropt;
-    ropt.sample_distance_mm = params_.sample_distance_mm;
-    ropt.want_rgb = false;
-    ropt.want_depth = true;
-    {
-        Level& L = level(kPivotWidthPx);
-        RenderImage img;
-        renderer_->render(L.K, T0, ropt, img);
-        std::vector<float> depths;
-        double su = 0, sv = 0;
-        size_t n = 0;
-        for (int v = 0; v < L.K.height; ++v)
-            for (int u = 0; u < L.K.width; ++u) {
-                const size_t i = size_t(v) * L.K.width + u;
-                if (!L.photo.valid.at<uint8_t>(v, u) && in.roi) continue;
-                su += u;
-                sv += v;
-                ++n;
-                if (img.coverage[i]) depths.push_back(img.depth_mm[i]);
-            }
-        Eigen::Vector3d pivot_cam;
-        if (depths.size() > 20 && n > 0) {
-            std::nth_element(depths.begin(), depths.begin() + long(depths.size() / 2), depths.end());
-            const double z = depths[depths.size() / 2];
-            pivot_cam = backproject(L.K, Eigen::Vector2d(su / n, sv / n), z);
-        } else if (!in.landmarks.empty()) {
-            Eigen::Vector3d c = Eigen::Vector3d::Zero();
-            for (const auto& l : in.landmarks) c += l.world_mm;
-            c /= double(in.landmarks.size());
-            pivot_cam = T0.topLeftCorner<3, 3>() * c + T0.topRightCorner<3, 1>();
-        } else {
-            throw InputError("initial pose", "the brain is not in view of the camera at the initial pose");
-        }
-        res.pivot_world_mm = T0.inverse().topLeftCorner<3, 3>() * pivot_cam + T0.inverse().topRightCorner<3, 1>();
-    }
+    Scorer scorer(in, params_, *renderer_);
+    res.pivot_world_mm = scorer.find_pivot_world(T0);
     const Eigen::Vector3d pivot_cam = T0.topLeftCorner<3, 3>() * res.pivot_world_mm + T0.topRightCorner<3, 1>();
-    const double depth_mm = pivot_cam.z();
+    scorer.set_depth(pivot_cam.z());
     std::vector<PoseParams> starts = params_.starts;
     for (const Pose& A : alternatives) starts.push_back(params_between(T0, A, pivot_cam));
 
-    Similarity sim(params_.bins);
-    const SimilarityMetric metric = metric_from_name(params_.metric);
-    RenderImage img;
-    cv::Mat rendered, rendered_blur, photo_blur;
     int total_budget = 0;
     for (const auto& s : params_.search_stages) total_budget += s.max_evaluations * int(starts.size());
     for (const auto& s : params_.final_stages) total_budget += s.max_evaluations * params_.keep_best;
@@ -357,12 +411,8 @@ RegistrationResult Registration::run(const PhotoInput& in, const Progress* progr
 
     // Similarity of the pose given by params x at a stage (higher is better) and the cost.
     auto evaluate = [&](const PoseParams& x, const StageParams& st, double& similarity) {
-        Level& L = level(st.render_width_px);
         const Pose T = apply_params(T0, pivot_cam, x);
-        renderer_->render(L.K, T, ropt, img);
-        rendered = cv::Mat(L.K.height, L.K.width, CV_32F, img.grey.data());
-        blur_fwhm_mm(rendered, rendered_blur, st.fwhm_mm, L.K.fx, depth_mm);
-        similarity = sim.evaluate(metric, rendered_blur, photo_blur, L.photo.valid);
+        similarity = scorer.similarity(T, st);
         double cost = -similarity;
         if (use_prior) {
             const double to_ref = double(kPriorReferenceWidthPx) / K.width;
@@ -375,8 +425,6 @@ RegistrationResult Registration::run(const PhotoInput& in, const Progress* progr
 
     auto run_stage = [&](const StageParams& st, int start_index, const PoseParams& x0, double& best_sim) {
         const auto t0 = Clock::now();
-        Level& L = level(st.render_width_px);
-        blur_fwhm_mm(L.photo.channel, photo_blur, st.fwhm_mm, L.K.fx, depth_mm);
         StageReport rep;
         rep.name = st.name;
         rep.start = start_index;
@@ -418,8 +466,6 @@ RegistrationResult Registration::run(const PhotoInput& in, const Progress* progr
     // Similarity at the start, for the record.
     {
         const StageParams& first = !params_.search_stages.empty() ? params_.search_stages.front() : params_.final_stages.front();
-        Level& L = level(first.render_width_px);
-        blur_fwhm_mm(L.photo.channel, photo_blur, first.fwhm_mm, L.K.fx, depth_mm);
         double s0 = 0;
         evaluate({0, 0, 0, 0, 0, 0}, first, s0);
         res.initial_similarity = s0;
@@ -466,8 +512,6 @@ RegistrationResult Registration::run(const PhotoInput& in, const Progress* progr
     // Report the similarity at the final pose at the last stage's level.
     {
         const StageParams& last = !params_.final_stages.empty() ? params_.final_stages.back() : params_.search_stages.back();
-        Level& L = level(last.render_width_px);
-        blur_fwhm_mm(L.photo.channel, photo_blur, last.fwhm_mm, L.K.fx, depth_mm);
         double s = 0;
         evaluate(best.x, last, s);
         res.similarity = s;

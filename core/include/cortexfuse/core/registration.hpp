@@ -104,6 +104,13 @@ struct PhotoInput {
     std::optional<Pose> initial_pose;  // used instead of the landmark fit when given
 };
 
+/// Similarity along each pose parameter about a pose (rx, ry, rz in deg, tx, ty, tz in mm,
+/// about the pivot in the camera frame): the landscape the optimiser sees.
+struct SimilaritySweep {
+    std::array<std::vector<double>, 6> offsets, similarity;
+    Eigen::Vector3d pivot_world_mm = Eigen::Vector3d::Zero();
+};
+
 /// A registration engine for one volume: prepares the renderer once, then runs any number of
 /// registrations (the evaluation reuses it). Thread contract: one run() at a time.
 class Registration {
@@ -112,6 +119,9 @@ public:
     Registration(const Volume& volume, const LabelVolume& brain_mask, RegistrationParams params);
     ~Registration();
     RegistrationResult run(const PhotoInput& in, const Progress* progress = nullptr);
+    /// The similarity landscape about `T_center` at one stage's size and blur (diagnosis).
+    SimilaritySweep sweep(const PhotoInput& in, const Pose& T_center, const StageParams& stage, double range_mm = 10,
+                          double range_deg = 10, int steps = 41);
     const RegistrationParams& params() const { return params_; }
     /// The renderer used for the similarity (registration style), e.g. for depth lookups.
     Renderer& renderer() { return *renderer_; }

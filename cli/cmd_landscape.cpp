@@ -1,0 +1,86 @@
+// cortexfuse landscape: the similarity along each pose parameter about the true (or landmark)
+// pose of a case, as a picture: where the optimiser's target really is.
+#include <opencv2/imgcodecs.hpp>
+#include <opencv2/imgproc.hpp>
+
+#include <iostream>
+#include <nlohmann/json.hpp>
+
+#include "commands.hpp"
+#include "cortexfuse/core/error.hpp"
+#include "cortexfuse/core/landmarks.hpp"
+#include "cortexfuse/core/registration.hpp"
+
+namespace cf::cli {
+
+namespace {
+struct LandscapeCmd {
+    std::string case_dir, out, params_file, about = "truth";
+    double fwhm_mm = 4, range_mm = 10, range_deg = 10;
+    int width_px = 190, steps = 41;
+};
+}  // namespace
+
+void add_landscape(CLI::App& app) {
+    auto o = std::make_shared<LandscapeCmd>();
+    auto* sub = app.add_subcommand("landscape", "Plot the similarity along each pose parameter about a case's pose");
+    sub->add_option("case_dir", o->case_dir, "Case folder")->required();
+    sub->add_option("--out", o->out, "PNG to write")->required();
+    sub->add_option("--about", o->about, "truth (needs truth.json) or landmarks")->capture_default_str();
+    sub->add_option("--params", o->params_file, "Registration parameters (JSON)");
+    sub->add_option("--fwhm-mm", o->fwhm_mm, "Blur FWHM at the cortex")->capture_default_str();
+    sub->add_option("--width-px", o->width_px, "Working image width")->capture_default_str();
+    sub->add_option("--range-mm", o->range_mm, "Translation range +-")->capture_default_str();
+    sub->add_option("--range-deg", o->range_deg, "Rotation range +-")->capture_default_str();
+    sub->add_option("--steps", o->steps, "Samples per parameter")->capture_default_str();
+    sub->callback([o] {
+        run_guarded("landscape", [&] {
+            LoadedCase c = load_case(o->case_dir);
+            RegistrationParams params = RegistrationParams::defaults();
+            if (!o->params_file.empty()) params = registration_params_from_json(read_json_file(o->params_file), o->params_file);
+            Pose T;
+            if (o->about == "truth") {
+                if (!c.spec.truth) throw InputError(o->case_dir + "/truth.json", "missing (use --about landmarks)");
+                T = c.spec.truth->T_camera_from_world;
+            } else if (o->about == "landmarks") {
+                T = fit_pose_pnp(c.spec.landmarks, c.spec.camera).T_camera_from_world;
+            } else {
+                throw InputError("--about " + o->about, "expected truth or landmarks");
+            }
+            Registration reg(c.volume, c.mask, params);
+            StageParams st;
+            st.fwhm_mm = o->fwhm_mm;
+            st.render_width_px = o->width_px;
+            const SimilaritySweep sw = reg.sweep(c.photo, T, st, o->range_mm, o->range_deg, o->steps);
+            // 3 x 2 panels.
+            const int pw = 300, ph = 200, W = pw * 3, H = ph * 2 + 30;
+            cv::Mat img(H, W, CV_8UC3, cv::Scalar(255, 255, 255));
+            const char* names[6] = {"rx deg", "ry deg", "rz deg", "tx mm", "ty mm", "tz mm"};
+            nlohmann::json j = {{"about", o->about}, {"fwhm_mm", o->fwhm_mm}, {"width_px", o->width_px}};
+            for (int p = 0; p < 6; ++p) {
+                const auto& xs = sw.offsets[size_t(p)];
+                const auto& ys = sw.similarity[size_t(p)];
+                const auto [mn, mx] = std::minmax_element(ys.begin(), ys.end());
+                const int ox = (p % 3) * pw, oy = 30 + (p / 3) * ph;
+                cv::rectangle(img, {ox + 30, oy + 10}, {ox + pw - 10, oy + ph - 30}, cv::Scalar(200, 200, 200));
+                auto X = [&](size_t i) { return ox + 30 + int((pw - 40) * double(i) / double(xs.size() - 1)); };
+                auto Y = [&](double v) { return oy + ph - 30 - int((ph - 40) * (v - *mn) / std::max(*mx - *mn, 1e-9)); };
+                cv::line(img, {X(xs.size() / 2), oy + 10}, {X(xs.size() / 2), oy + ph - 30}, cv::Scalar(0, 0, 220), 1);
+                for (size_t i = 1; i < xs.size(); ++i) cv::line(img, {X(i - 1), Y(ys[i - 1])}, {X(i), Y(ys[i])}, cv::Scalar(120, 60, 0), 2);
+                const size_t best = size_t(std::max_element(ys.begin(), ys.end()) - ys.begin());
+                cv::circle(img, {X(best), Y(ys[best])}, 4, cv::Scalar(0, 150, 0), cv::FILLED);
+                char label[96];
+                std::snprintf(label, sizeof label, "%s  peak at %+.1f", names[p], xs[best]);
+                cv::putText(img, label, {ox + 35, oy + ph - 12}, cv::FONT_HERSHEY_SIMPLEX, 0.45, cv::Scalar(0, 0, 0));
+                j["peak_offsets"].push_back(xs[best]);
+            }
+            cv::putText(img, params.metric + " about the " + o->about + " pose (red line); green: peak", {10, 20},
+                        cv::FONT_HERSHEY_SIMPLEX, 0.5, cv::Scalar(0, 0, 0));
+            if (!cv::imwrite(o->out, img)) throw InputError(o->out, "cannot write PNG");
+            std::cout << j.dump() << "\n";
+            return 0;
+        });
+    });
+}
+
+}  // namespace cf::cli
