@@ -64,6 +64,7 @@ void RegistrationParams::validate(const std::string& ctx) const {
     if (photo_channel != "grey" && photo_channel != "green" && photo_channel != "blue_minus_half_red")
         bad("photo_channel must be grey, green or blue_minus_half_red");
     metric_from_name(metric);
+    if (!(vessel_mask_mad >= 0 && vessel_mask_mad <= 100)) bad("vessel_mask_mad must be 0..100 (0: off)");
     if (!(landmark_prior_weight >= 0) || !(landmark_prior_tolerance_px >= 0)) bad("landmark prior must be >= 0");
     if (!(sample_distance_mm >= 0.1 && sample_distance_mm <= 5)) bad("sample_distance_mm must be 0.1..5");
     if (starts.empty()) bad("at least one start");
@@ -109,6 +110,7 @@ json to_json(const RegistrationParams& p) {
     j["metric"] = p.metric;
     j["bins"] = p.bins;
     j["mask_glare"] = p.mask_glare;
+    j["vessel_mask_mad"] = p.vessel_mask_mad;
     j["landmark_prior_weight"] = p.landmark_prior_weight;
     j["landmark_prior_tolerance_px"] = p.landmark_prior_tolerance_px;
     j["sample_distance_mm"] = p.sample_distance_mm;
@@ -130,6 +132,7 @@ RegistrationParams registration_params_from_json(const json& j, const std::strin
         p.metric = j.value("metric", p.metric);
         p.bins = j.value("bins", p.bins);
         p.mask_glare = j.value("mask_glare", p.mask_glare);
+        p.vessel_mask_mad = j.value("vessel_mask_mad", p.vessel_mask_mad);
         p.landmark_prior_weight = j.value("landmark_prior_weight", p.landmark_prior_weight);
         p.landmark_prior_tolerance_px = j.value("landmark_prior_tolerance_px", p.landmark_prior_tolerance_px);
         p.sample_distance_mm = j.value("sample_distance_mm", p.sample_distance_mm);
@@ -176,7 +179,8 @@ json result_to_json(const RegistrationResult& r) {
 
 // ---------------------------------------------------------------- photo preprocessing
 
-PhotoChannel photo_channel(const cv::Mat& bgr, const std::string& channel, bool mask_glare, const cv::Mat& roi) {
+PhotoChannel photo_channel(const cv::Mat& bgr, const std::string& channel, bool mask_glare, const cv::Mat& roi,
+                           double vessel_mad) {
     CV_Assert(bgr.type() == CV_8UC3);
     PhotoChannel out;
     out.channel.create(bgr.size(), CV_32F);
@@ -207,6 +211,43 @@ PhotoChannel photo_channel(const cv::Mat& bgr, const std::string& channel, bool 
         if (!roi.empty()) cv::bitwise_and(excluded, roi, excluded);
         cv::dilate(excluded, excluded, cv::getStructuringElement(cv::MORPH_ELLIPSE, {3, 3}));
         out.valid.setTo(0, excluded);
+    }
+    if (vessel_mad > 0) {
+        // Vessels and blood: not in the MRI. Tissue is the majority of the ROI, so pixels whose
+        // saturation or darkness stands out from the ROI's median by more than `vessel_mad`
+        // median absolute deviations are dropped (adapts to each photo's tint and exposure).
+        std::vector<float> sat, val;
+        cv::Mat S(bgr.size(), CV_32F), V(bgr.size(), CV_32F);
+        for (int y = 0; y < bgr.rows; ++y) {
+            const cv::Vec3b* p = bgr.ptr<cv::Vec3b>(y);
+            const uint8_t* v = out.valid.ptr<uint8_t>(y);
+            for (int x = 0; x < bgr.cols; ++x) {
+                const float mx = std::max({p[x][0], p[x][1], p[x][2]}) / 255.f, mn = std::min({p[x][0], p[x][1], p[x][2]}) / 255.f;
+                S.at<float>(y, x) = mx > 1e-6f ? (mx - mn) / mx : 0.f;
+                V.at<float>(y, x) = mx;
+                if (v[x]) {
+                    sat.push_back(S.at<float>(y, x));
+                    val.push_back(mx);
+                }
+            }
+        }
+        auto median_mad = [](std::vector<float> a) {
+            if (a.empty()) return std::pair<float, float>(0.f, 1.f);
+            std::nth_element(a.begin(), a.begin() + long(a.size() / 2), a.end());
+            const float med = a[a.size() / 2];
+            for (auto& x : a) x = std::abs(x - med);
+            std::nth_element(a.begin(), a.begin() + long(a.size() / 2), a.end());
+            return std::pair<float, float>(med, std::max(a[a.size() / 2], 1e-3f));
+        };
+        const auto [s_med, s_mad] = median_mad(sat);
+        const auto [v_med, v_mad] = median_mad(val);
+        cv::Mat vessel(bgr.size(), CV_8U, cv::Scalar(0));
+        for (int y = 0; y < bgr.rows; ++y)
+            for (int x = 0; x < bgr.cols; ++x)
+                if (S.at<float>(y, x) > s_med + float(vessel_mad) * s_mad || V.at<float>(y, x) < v_med - float(vessel_mad) * v_mad)
+                    vessel.at<uint8_t>(y, x) = 255;
+        cv::dilate(vessel, vessel, cv::getStructuringElement(cv::MORPH_ELLIPSE, {3, 3}));
+        out.valid.setTo(0, vessel);
     }
     // Robust normalisation to [0, 1] over the valid pixels.
     std::vector<float> vals;
@@ -276,7 +317,7 @@ public:
         cv::Mat small;
         cv::resize(in_.photo_bgr, small, cv::Size(w, h), 0, 0, cv::INTER_AREA);
         cv::Mat roi = in_.roi ? roi_mask(*in_.roi, w, h, L.scale) : cv::Mat();
-        L.photo = photo_channel(small, p_.photo_channel, p_.mask_glare, roi);
+        L.photo = photo_channel(small, p_.photo_channel, p_.mask_glare, roi, p_.vessel_mask_mad);
         if (cv::countNonZero(L.photo.valid) < 50)
             throw InputError("photo", "fewer than 50 usable pixels in the ROI at " + std::to_string(w) + " px width (all glare or drapes?)");
         return levels_.emplace(width, std::move(L)).first->second;

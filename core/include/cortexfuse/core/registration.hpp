@@ -39,6 +39,9 @@ struct RegistrationParams {
     std::string metric = "nmi";
     int bins = 32;
     bool mask_glare = true;          // drop specular glare, gauze and drapes from the similarity mask
+    /// Drop vessels and blood: pixels more saturated or darker than the ROI's median by this many
+    /// median absolute deviations. 0 disables.
+    double vessel_mask_mad = 0;
     /// Soft prior: penalty weight * max(0, rms - rms_landmark - tolerance)^2, rms in pixels at
     /// 375 px width. Holds depth and tilt, which a single photo barely constrains. 0 disables.
     double landmark_prior_weight = 0.002;
@@ -148,6 +151,6 @@ struct PhotoChannel {
     cv::Mat valid;    // CV_8U, 255 where pixels count
 };
 PhotoChannel photo_channel(const cv::Mat& photo_bgr_working, const std::string& channel, bool mask_glare,
-                           const cv::Mat& roi_mask);
+                           const cv::Mat& roi_mask, double vessel_mad = 0);
 
 }  // namespace cf
