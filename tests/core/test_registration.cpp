@@ -1,0 +1,131 @@
+// The registration pipeline end to end on a generated phantom case: what it must always do
+// (a rigid result, stages as configured, progress, cancel), whatever its accuracy.
+#include <gtest/gtest.h>
+
+#include <filesystem>
+
+#include "cortexfuse/core/case.hpp"
+#include "cortexfuse/core/error.hpp"
+#include "cortexfuse/core/evaluation.hpp"
+#include "cortexfuse/core/phantom.hpp"
+#include "cortexfuse/core/registration.hpp"
+
+namespace fs = std::filesystem;
+using namespace cf;
+
+namespace {
+
+struct Fixture {
+    fs::path dir;
+    LoadedCase c;
+};
+
+const Fixture& fixture() {
+    static Fixture f = [] {
+        Fixture x;
+        x.dir = fs::temp_directory_path() / ("cf_test_registration_" + std::to_string(::getpid()));
+        fs::remove_all(x.dir);
+        PhantomParams p;
+        p.seed = 5;
+        p.dslr_fraction = 0;
+        generate_phantoms(x.dir, 1, fs::path(CF_DATA_DIR) / "t1_head_mne_ecog.nii.gz",
+                          fs::path(CF_DATA_DIR) / "brainmask_mne_ecog_binary.nii.gz", p);
+        x.c = load_case(x.dir / "case_0000");
+        return x;
+    }();
+    return f;
+}
+
+RegistrationParams small_params() {
+    RegistrationParams p = RegistrationParams::defaults();
+    for (auto& s : p.search_stages) s.max_evaluations = 15;
+    for (auto& s : p.final_stages) s.max_evaluations = 15;
+    return p;
+}
+
+}  // namespace
+
+TEST(Registration, RunsAllConfiguredStagesAndReturnsARigidPose) {
+    const Fixture& f = fixture();
+    Registration reg(f.c.volume, f.c.mask, small_params());
+    std::vector<double> fractions;
+    Progress progress;
+    progress.report = [&](const std::string&, double fr) { fractions.push_back(fr); };
+    const RegistrationResult r = reg.run(f.c.photo, &progress);
+    EXPECT_TRUE(is_rigid(r.T_camera_from_world));
+    // One report per stage per start, and the final stages once per kept candidate.
+    ASSERT_GE(r.stages.size(), small_params().search_stages.size() + small_params().final_stages.size());
+    EXPECT_EQ(r.stages.front().name, small_params().search_stages.front().name);
+    int evals = 0;
+    for (const auto& s : r.stages) {
+        EXPECT_LE(s.evaluations, 15);
+        EXPECT_GT(s.evaluations, 0);
+        evals += s.evaluations;
+    }
+    EXPECT_EQ(evals, r.evaluations);
+    EXPECT_EQ(r.trace.size(), size_t(r.evaluations));
+    EXPECT_GT(r.similarity, 1.0);  // NMI of images that share anything exceeds 1
+    ASSERT_FALSE(fractions.empty());
+    EXPECT_DOUBLE_EQ(fractions.back(), 1.0);
+    for (size_t i = 1; i < fractions.size(); ++i) EXPECT_GE(fractions[i], fractions[i - 1]);
+    // The saved parameters are the ones used.
+    EXPECT_EQ(result_to_json(r)["parameters"], to_json(small_params()));
+}
+
+TEST(Registration, IsDeterministic) {
+    const Fixture& f = fixture();
+    Registration reg(f.c.volume, f.c.mask, small_params());
+    const RegistrationResult a = reg.run(f.c.photo);
+    const RegistrationResult b = reg.run(f.c.photo);
+    EXPECT_EQ(a.evaluations, b.evaluations);
+    EXPECT_NEAR((a.T_camera_from_world - b.T_camera_from_world).norm(), 0.0, 1e-12);
+}
+
+TEST(Registration, CancelStopsWithCancelled) {
+    const Fixture& f = fixture();
+    Registration reg(f.c.volume, f.c.mask, small_params());
+    CancelToken token;
+    Progress progress;
+    progress.cancel = &token;
+    int reports = 0;
+    progress.report = [&](const std::string&, double) {
+        if (++reports == 2) token.cancel();
+    };
+    EXPECT_THROW(reg.run(f.c.photo, &progress), Cancelled);
+}
+
+TEST(Registration, ParametersRoundTripAndRejectNonsense) {
+    const RegistrationParams p = RegistrationParams::seed_schedule();
+    const RegistrationParams q = registration_params_from_json(to_json(p), "params");
+    EXPECT_EQ(to_json(q), to_json(p));
+    nlohmann::json bad = to_json(p);
+    bad["bins"] = 1;
+    EXPECT_THROW(registration_params_from_json(bad, "params"), InputError);
+    bad = to_json(p);
+    bad["search_stages"][0]["step_mm"] = -1;
+    EXPECT_THROW(registration_params_from_json(bad, "params"), InputError);
+    bad = to_json(p);
+    bad["photo_channel"] = "ultraviolet";
+    EXPECT_THROW(registration_params_from_json(bad, "params"), InputError);
+}
+
+TEST(Evaluation, ErrorsAreZeroAtTheTruthAndGrowWithMisalignment) {
+    const Fixture& f = fixture();
+    ASSERT_TRUE(f.c.spec.truth.has_value());
+    Registration reg(f.c.volume, f.c.mask, small_params());
+    const Truth& t = *f.c.spec.truth;
+    const PoseErrors e0 = pose_errors(t, f.c.spec.camera, t.T_camera_from_world, reg.renderer());
+    EXPECT_NEAR(e0.tre_mm, 0.0, 1e-9);
+    EXPECT_NEAR(e0.ipe_px, 0.0, 1e-6);
+    // The targets lie on the phantom's mesh; the ray-cast surface is within a voxel or two.
+    EXPECT_LT(e0.mre_mm, 2.0);
+    Eigen::Vector3d c = Eigen::Vector3d::Zero();
+    for (const auto& p : t.targets_world_mm) c += p;
+    c /= double(t.targets_world_mm.size());
+    const Eigen::Vector3d pivot = t.T_camera_from_world.topLeftCorner<3, 3>() * c + t.T_camera_from_world.topRightCorner<3, 1>();
+    const Pose moved = apply_params(t.T_camera_from_world, pivot, {0, 0, 0, 5, 0, 0});
+    const PoseErrors e1 = pose_errors(t, f.c.spec.camera, moved, reg.renderer());
+    EXPECT_NEAR(e1.tre_mm, 5.0, 1e-6);
+    EXPECT_GT(e1.mre_mm, 3.0);
+    EXPECT_GT(e1.ipe_px, e0.ipe_px);
+}
