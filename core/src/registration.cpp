@@ -5,6 +5,7 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <filesystem>
 #include <map>
 #include <numeric>
 
@@ -27,15 +28,21 @@ constexpr int kPivotWidthPx = 190;           // the depth under the ROI needs no
 // ---------------------------------------------------------------- parameters as data
 
 RegistrationParams RegistrationParams::defaults() {
+    // Chosen with `cortexfuse evaluate` and `cortexfuse landscape` on phantom cases (see
+    // docs/registration.md): grey channel with vessels and glare masked, shading trends removed,
+    // a firm landmark prior, one coarse search then a fine stage at 375 px.
     RegistrationParams p;
+    p.photo_channel = "grey";
+    p.vessel_mask_mad = 3.0;
+    p.highpass_fwhm_mm = 12.0;
+    p.landmark_prior_weight = 0.01;
     p.starts = {{0, 0, 0, 0, 0, 0}};
     p.search_stages = {
-        {"coarse-fwhm8", 8.0, 4.0, 4.0, 128, 80, 0.2, 0.2},
-        {"coarse-fwhm4", 4.0, 2.0, 2.0, 190, 80, 0.1, 0.1},
+        {"search-fwhm4", 4.0, 2.0, 2.0, 190, 80, 0.1, 0.1},
     };
     p.keep_best = 1;
     p.final_stages = {
-        {"final-fwhm2", 2.0, 1.0, 1.0, 190, 100, 0.05, 0.05},
+        {"final-fwhm2", 2.0, 1.0, 1.0, 375, 80, 0.05, 0.05},
     };
     return p;
 }
@@ -44,6 +51,8 @@ RegistrationParams RegistrationParams::seed_schedule() {
     RegistrationParams p;
     p.transfer_function = "cortex_t1";
     p.photo_channel = "grey";
+    p.vessel_mask_mad = 0;
+    p.highpass_fwhm_mm = 0;
     p.landmark_prior_weight = 0;
     p.bins = 64;
     // Subspaces: the landmark pose and out-of-plane tilts on either side.
@@ -64,6 +73,7 @@ void RegistrationParams::validate(const std::string& ctx) const {
     if (photo_channel != "grey" && photo_channel != "green" && photo_channel != "blue_minus_half_red")
         bad("photo_channel must be grey, green or blue_minus_half_red");
     metric_from_name(metric);
+    if (!(highpass_fwhm_mm >= 0 && highpass_fwhm_mm <= 200)) bad("highpass_fwhm_mm must be 0..200 (0: off)");
     if (!(vessel_mask_mad >= 0 && vessel_mask_mad <= 100)) bad("vessel_mask_mad must be 0..100 (0: off)");
     if (!(landmark_prior_weight >= 0) || !(landmark_prior_tolerance_px >= 0)) bad("landmark prior must be >= 0");
     if (!(sample_distance_mm >= 0.1 && sample_distance_mm <= 5)) bad("sample_distance_mm must be 0.1..5");
@@ -111,6 +121,7 @@ json to_json(const RegistrationParams& p) {
     j["bins"] = p.bins;
     j["mask_glare"] = p.mask_glare;
     j["vessel_mask_mad"] = p.vessel_mask_mad;
+    j["highpass_fwhm_mm"] = p.highpass_fwhm_mm;
     j["landmark_prior_weight"] = p.landmark_prior_weight;
     j["landmark_prior_tolerance_px"] = p.landmark_prior_tolerance_px;
     j["sample_distance_mm"] = p.sample_distance_mm;
@@ -133,6 +144,7 @@ RegistrationParams registration_params_from_json(const json& j, const std::strin
         p.bins = j.value("bins", p.bins);
         p.mask_glare = j.value("mask_glare", p.mask_glare);
         p.vessel_mask_mad = j.value("vessel_mask_mad", p.vessel_mask_mad);
+        p.highpass_fwhm_mm = j.value("highpass_fwhm_mm", p.highpass_fwhm_mm);
         p.landmark_prior_weight = j.value("landmark_prior_weight", p.landmark_prior_weight);
         p.landmark_prior_tolerance_px = j.value("landmark_prior_tolerance_px", p.landmark_prior_tolerance_px);
         p.sample_distance_mm = j.value("sample_distance_mm", p.sample_distance_mm);
@@ -278,7 +290,12 @@ Registration::Registration(const Volume& volume, const LabelVolume& brain_mask, 
     params_.validate("registration parameters");
     if (!brain_mask.geom.same_grid(volume.geom)) throw InputError("brain mask", "is not on the volume's grid");
     if (brain_mask.count_nonzero() < 1000) throw InputError("brain mask", "is (nearly) empty");
-    renderer_ = make_cpu_renderer(volume, preset_transfer_function(params_.transfer_function), &brain_mask);
+    // A preset name, or a transfer-function JSON file (for evaluating render styles).
+    std::error_code ec;
+    const TransferFunction tf = std::filesystem::is_regular_file(params_.transfer_function, ec)
+                                    ? load_transfer_function(params_.transfer_function)
+                                    : preset_transfer_function(params_.transfer_function);
+    renderer_ = make_cpu_renderer(volume, tf, &brain_mask);
 }
 
 Registration::~Registration() = default;
@@ -361,14 +378,31 @@ public:
     double similarity(const Pose& T, const StageParams& st) {
         Level& L = level(st.render_width_px);
         if (L.blurred_fwhm_mm != st.fwhm_mm) {
-            blur_fwhm_mm(L.photo.channel, L.photo_blur, st.fwhm_mm, L.K.fx, depth_mm_);
+            filter(L.photo.channel, L.photo_blur, st.fwhm_mm, L);
             L.blurred_fwhm_mm = st.fwhm_mm;
         }
         renderer_.render(L.K, T, ropt_, img_);
         const cv::Mat rendered(L.K.height, L.K.width, CV_32F, img_.grey.data());
-        blur_fwhm_mm(rendered, rendered_blur_, st.fwhm_mm, L.K.fx, depth_mm_);
+        filter(rendered, rendered_blur_, st.fwhm_mm, L);
         return sim_.evaluate(metric_, rendered_blur_, L.photo_blur, L.photo.valid);
     }
+
+private:
+    /// Blur by the stage's FWHM; with a high-pass, also remove shading trends wider than
+    /// highpass_fwhm_mm (lighting gradients and vignetting that out-of-plane tilts would
+    /// otherwise be fitted to) and rescale the result to [0, 1] inside the mask.
+    void filter(const cv::Mat& src, cv::Mat& dst, double fwhm_mm, const Level& L) {
+        blur_fwhm_mm(src, dst, fwhm_mm, L.K.fx, depth_mm_);
+        if (p_.highpass_fwhm_mm <= 0) return;
+        blur_fwhm_mm(dst, lowpass_, p_.highpass_fwhm_mm, L.K.fx, depth_mm_);
+        dst -= lowpass_;
+        double mn = 0, mx = 0;
+        cv::minMaxLoc(dst, &mn, &mx, nullptr, nullptr, L.photo.valid);
+        if (mx - mn < 1e-9) mx = mn + 1e-9;
+        dst.convertTo(dst, CV_32F, 1.0 / (mx - mn), -mn / (mx - mn));
+    }
+
+public:
 
 private:
     const PhotoInput& in_;
@@ -379,7 +413,7 @@ private:
     RenderOptions ropt_;
     std::map<int, Level> levels_;
     RenderImage img_;
-    cv::Mat rendered_blur_;
+    cv::Mat rendered_blur_, lowpass_;
     double depth_mm_ = 300;
 };
 

@@ -85,7 +85,10 @@ TransferFunction preset_transfer_function(const std::string& name) {
         // An opaque white surface where grey matter starts: only the shape of the cortex is
         // shown, lit by the headlight (registration-lessons: this peaks at the true pose).
         tf.colour = {{0, 1, 1, 1}, {1, 1, 1, 1}};
-        tf.opacity = {{0, 0}, {0.22, 0}, {0.32, 1}, {1, 1}};
+        // The level sits between CSF and grey matter of a T1 inside the brain mask (0.38-0.46 of
+        // the robust range): lower levels render the CSF/arachnoid envelope, whose similarity
+        // to the photo peaked away from the truth in `cortexfuse landscape`.
+        tf.opacity = {{0, 0}, {0.38, 0}, {0.46, 1}, {1, 1}};
     } else if (name == "cortex_t1") {
         // The seed's look: the T1 intensity just under the brain surface, tissue colours.
         tf.colour = {{0, 0.3, 0.1, 0.1}, {0.3, 0.75, 0.45, 0.4}, {0.55, 0.95, 0.75, 0.7}, {1, 1, 0.95, 0.9}};

@@ -35,16 +35,19 @@ struct StageParams {
 struct RegistrationParams {
     std::string transfer_function = "surface_white";  // render style: a preset name
     /// Photo channel compared with the rendering: "grey", "green", "blue_minus_half_red" (hides vessels).
-    std::string photo_channel = "blue_minus_half_red";
+    std::string photo_channel = "grey";
     std::string metric = "nmi";
     int bins = 32;
     bool mask_glare = true;          // drop specular glare, gauze and drapes from the similarity mask
     /// Drop vessels and blood: pixels more saturated or darker than the ROI's median by this many
     /// median absolute deviations. 0 disables.
-    double vessel_mask_mad = 0;
+    double vessel_mask_mad = 3.0;
+    /// Remove shading trends wider than this FWHM (mm at the cortex) from photo and rendering
+    /// before comparing them. 0 disables.
+    double highpass_fwhm_mm = 12.0;
     /// Soft prior: penalty weight * max(0, rms - rms_landmark - tolerance)^2, rms in pixels at
     /// 375 px width. Holds depth and tilt, which a single photo barely constrains. 0 disables.
-    double landmark_prior_weight = 0.002;
+    double landmark_prior_weight = 0.01;
     double landmark_prior_tolerance_px = 1.0;
     double sample_distance_mm = 1.0;
     /// The seed's subspaces: starting offsets (rx, ry, rz deg, tx, ty, tz mm) about the pivot,
