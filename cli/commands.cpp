@@ -28,6 +28,7 @@ void add_commands(CLI::App& app) {
     add_landscape(app);
     add_skullstrip(app);
     add_phantom(app);
+    add_bench(app);
 }
 
 }  // namespace cf::cli

@@ -8,7 +8,7 @@ PACKAGES=(
   libnlopt-cxx-dev libnlopt-dev libtbb-dev zlib1g-dev
   nlohmann-json3-dev libcli11-dev libspdlog-dev
   libgtest-dev libgmock-dev libbenchmark-dev
-  xvfb xauth
+  xvfb xauth jq
 )
 missing=()
 for p in "${PACKAGES[@]}"; do
