@@ -1,0 +1,212 @@
+#version 450 core
+// The ray caster of core/src/raycast_cpu.cpp, for NLAYERS co-registered volumes (defined by
+// the renderer when it builds the program, 1..4). Per pixel: the ray from the camera through
+// the pixel (undistorted on the CPU into u_rays), samples on the lattice t = n * step (mm from
+// the camera), trilinear interpolation of the quantised volume (0..4095), the transfer
+// function as a 4096-entry table, bisection to the first crossing of the reference layer's
+// surface level (depth and shading there), Lambert headlight shading from the central-
+// difference gradient, front-to-back compositing, early termination, and empty-space skipping
+// over 8^3 bricks. Image row v is framebuffer row v (no flip; read back row by row).
+// Weighted fusion of several layers: see cortexfuse/core/fusion.hpp.
+#ifndef NLAYERS
+#define NLAYERS 1
+#endif
+#define BRICK 8
+#define FLT_BIG 3.402823e38
+
+layout(location = 0) out vec4 o_rgb;
+layout(location = 1) out float o_grey;
+layout(location = 2) out float o_depth;
+layout(location = 3) out uint o_coverage;
+
+layout(binding = 0) uniform sampler2D u_rays;              // unit camera-frame ray per pixel
+layout(binding = 1) uniform sampler3D u_vol[NLAYERS];      // R16 unorm: quantised value / 65535
+layout(binding = 5) uniform usampler3D u_bricks[NLAYERS];  // 1 where a brick can be visible
+layout(binding = 9) uniform sampler2D u_lut;               // row l: layer l's rgb, opacity per mm
+layout(binding = 10) uniform sampler2D u_mesh_rgb;          // opaque geometry, drawn first
+layout(binding = 11) uniform sampler2D u_mesh_z;            // its camera-frame z (mm); 0: none
+
+uniform mat3 u_R_world_from_camera;
+uniform vec3 u_cam_world;
+uniform mat4 u_index_from_world[NLAYERS];  // the layer's voxel index from scene world
+uniform vec3 u_dims[NLAYERS];
+uniform vec3 u_box_lo[NLAYERS];            // index-space box of the visible content
+uniform vec3 u_box_hi[NLAYERS];
+uniform float u_weight[NLAYERS];
+uniform float u_grad_scale[NLAYERS];        // quantised unit -> volume unit
+uniform int u_grad_n[NLAYERS];              // gradient-opacity points (0: none)
+uniform vec2 u_grad_pts[NLAYERS * 8];
+uniform float u_iso;                        // layer 0's surface level (quantised), < 0: none
+uniform float u_step;
+uniform float u_ambient;
+uniform float u_diffuse;
+uniform float u_term;
+uniform float u_cov;
+uniform bool u_shading;
+uniform bool u_has_mesh;
+
+float vol(int l, vec3 p) {
+    return texture(u_vol[l], (p + 0.5) / u_dims[l]).r * 65535.0;
+}
+
+float vol_clamped(int l, vec3 p) {
+    return vol(l, clamp(p, vec3(0.0), u_dims[l] - 1.0 - 1e-3));
+}
+
+float gradient_factor(int l, float g) {
+    const int n = u_grad_n[l];
+    const int b = l * 8;
+    if (g <= u_grad_pts[b].x) return u_grad_pts[b].y;
+    if (g >= u_grad_pts[b + n - 1].x) return u_grad_pts[b + n - 1].y;
+    for (int i = 1; i < n; ++i) {
+        const vec2 q = u_grad_pts[b + i];
+        if (g < q.x) {
+            const vec2 p = u_grad_pts[b + i - 1];
+            const float w = q.x > p.x ? (g - p.x) / (q.x - p.x) : 1.0;
+            return p.y + w * (q.y - p.y);
+        }
+    }
+    return u_grad_pts[b + n - 1].y;
+}
+
+void main() {
+    const ivec2 px = ivec2(gl_FragCoord.xy);
+    const vec3 ray_cam = texelFetch(u_rays, px, 0).xyz;
+    const vec3 dir_world = u_R_world_from_camera * ray_cam;
+
+    vec3 o[NLAYERS];
+    vec3 d[NLAYERS];
+    float lt0[NLAYERS];
+    float lt1[NLAYERS];
+    float t0 = FLT_BIG, t1 = -FLT_BIG;
+    for (int l = 0; l < NLAYERS; ++l) {
+        o[l] = (u_index_from_world[l] * vec4(u_cam_world, 1.0)).xyz;
+        d[l] = mat3(u_index_from_world[l]) * dir_world;
+        float a0 = 0.0, a1 = FLT_BIG;
+        for (int a = 0; a < 3; ++a) {
+            const float lo = u_box_lo[l][a], hi = u_box_hi[l][a];
+            if (abs(d[l][a]) < 1e-12) {
+                if (o[l][a] < lo || o[l][a] > hi) a1 = -1.0;
+                continue;
+            }
+            float ta = (lo - o[l][a]) / d[l][a], tb = (hi - o[l][a]) / d[l][a];
+            if (ta > tb) { const float s = ta; ta = tb; tb = s; }
+            a0 = max(a0, ta);
+            a1 = min(a1, tb);
+        }
+        lt0[l] = a0;
+        lt1[l] = a1;
+        if (a1 > a0) {
+            t0 = min(t0, a0);
+            t1 = max(t1, a1);
+        }
+    }
+
+    float t_mesh = FLT_BIG, z_mesh = 0.0;
+    vec3 mesh_rgb = vec3(0.0);
+    if (u_has_mesh) {
+        z_mesh = texelFetch(u_mesh_z, px, 0).r;
+        if (z_mesh > 0.0) {
+            t_mesh = z_mesh / ray_cam.z;
+            mesh_rgb = texelFetch(u_mesh_rgb, px, 0).rgb;
+        }
+    }
+
+    vec3 c = vec3(0.0);
+    float alpha = 0.0, depth = 0.0;
+    bool hit = false, refined = false;
+    const float step = u_step;
+    if (t1 > t0) {
+        float t = ceil(t0 / step) * step;
+        while (t <= t1 && t < t_mesh) {
+            // Empty-space skipping: jump to where the ray leaves the invisible brick(s).
+            bool visible = false;
+            float t_exit = FLT_BIG;
+            for (int l = 0; l < NLAYERS; ++l) {
+                if (lt1[l] <= lt0[l]) continue;
+                if (t < lt0[l]) { t_exit = min(t_exit, lt0[l]); continue; }
+                if (t > lt1[l]) continue;
+                const vec3 p = o[l] + t * d[l];
+                const ivec3 b = ivec3(p) / BRICK;
+                if (texelFetch(u_bricks[l], b, 0).r != 0u) { visible = true; break; }
+                for (int a = 0; a < 3; ++a) {
+                    const float da = d[l][a];
+                    if (da > 1e-12) t_exit = min(t_exit, t + (float((b[a] + 1) * BRICK) - p[a]) / da);
+                    else if (da < -1e-12) t_exit = min(t_exit, t + (float(b[a] * BRICK) - p[a]) / da);
+                }
+                t_exit = min(t_exit, lt1[l]);
+            }
+            if (!visible) {
+                t = max(ceil(t_exit / step + 1e-4) * step, t + step);
+                continue;
+            }
+            vec3 c_sum = vec3(0.0);
+            float a_sum = 0.0, transmit = 1.0;
+            int n_contrib = 0;
+            float t_at = t;
+            for (int l = 0; l < NLAYERS; ++l) {
+                if (lt1[l] <= lt0[l] || t < lt0[l] || t > lt1[l]) continue;
+                vec3 p = o[l] + t * d[l];
+                const float s = vol(l, p);
+                const vec4 e = texelFetch(u_lut, ivec2(int(s + 0.5), l), 0);
+                float a = e.a * u_weight[l];
+                if (a <= 0.0) continue;
+                if (l == 0 && !refined && u_iso >= 0.0 && s >= u_iso) {
+                    // First crossing of the surface level, between the last sample and this one.
+                    refined = true;
+                    float ta = t - step, tb = t;
+                    for (int it = 0; it < 6; ++it) {
+                        const float tm = 0.5 * (ta + tb);
+                        if (vol_clamped(0, o[0] + tm * d[0]) >= u_iso) tb = tm;
+                        else ta = tm;
+                    }
+                    t_at = tb;
+                    p = o[0] + tb * d[0];
+                }
+                float shade = 1.0;
+                const bool grad_op = u_grad_n[l] > 0;
+                if (u_shading || grad_op) {
+                    const vec3 gi = 0.5 * vec3(vol_clamped(l, p + vec3(1, 0, 0)) - vol_clamped(l, p - vec3(1, 0, 0)),
+                                               vol_clamped(l, p + vec3(0, 1, 0)) - vol_clamped(l, p - vec3(0, 1, 0)),
+                                               vol_clamped(l, p + vec3(0, 0, 1)) - vol_clamped(l, p - vec3(0, 0, 1)));
+                    const vec3 gw = transpose(mat3(u_index_from_world[l])) * gi;
+                    const float gn = length(gw);
+                    if (grad_op) a *= gradient_factor(l, gn * u_grad_scale[l]);
+                    if (u_shading) shade = u_ambient + u_diffuse * (gn > 1e-6 ? abs(dot(gw, dir_world)) / gn : 0.0);
+                }
+                const float a_step = a >= 1.0 ? 1.0 : 1.0 - pow(1.0 - a, step);
+                c_sum += a_step * e.rgb * shade;
+                a_sum += a_step;
+                transmit *= 1.0 - a_step;
+                ++n_contrib;
+            }
+            if (n_contrib > 0) {
+                // One layer: exactly the single-volume ray caster; several: weighted fusion.
+                const float sa = n_contrib == 1 ? a_sum : 1.0 - transmit;
+                const float w = (1.0 - alpha);
+                c += n_contrib == 1 ? w * c_sum : w * (sa / a_sum) * c_sum;
+                alpha += w * sa;
+                if (!hit && alpha >= u_cov) {
+                    hit = true;
+                    depth = t_at * ray_cam.z;
+                }
+                if (alpha >= u_term) break;
+            }
+            t += step;
+        }
+    }
+    if (z_mesh > 0.0 && alpha < u_term) {
+        // Opaque geometry behind what the ray gathered.
+        c += (1.0 - alpha) * mesh_rgb;
+        alpha = 1.0;
+        if (!hit) {
+            hit = true;
+            depth = z_mesh;
+        }
+    }
+    c = min(c, vec3(1.0));
+    o_rgb = vec4(c, 1.0);
+    o_grey = 0.299 * c.r + 0.587 * c.g + 0.114 * c.b;
+    o_depth = hit ? depth : 0.0;
+    o_coverage = hit ? 1u : 0u;
+}
