@@ -1,6 +1,7 @@
 // cortexfuse skullstrip: brain mask of a T1 head, with optional check image and Dice.
 #include <chrono>
 #include <iostream>
+#include <map>
 #include <memory>
 #include <nlohmann/json.hpp>
 
@@ -25,12 +26,21 @@ void add_skullstrip(CLI::App& app) {
     cmd->add_flag("--json", o->json, "print the result as one JSON object");
     cmd->add_flag("--quiet", o->quiet, "no progress lines on stderr");
     auto& p = o->params;
+    cmd->add_option("--target", p.target, "brain (cortex surface, default) or intracranial (CSF to the inner table)")
+        ->transform(CLI::CheckedTransformer(std::map<std::string, SkullStripTarget>{
+            {"brain", SkullStripTarget::brain}, {"intracranial", SkullStripTarget::intracranial}}));
+    cmd->add_option("--bet-fraction", p.bet_fraction, "surface model's fractional threshold (BET's f)")->capture_default_str();
+    cmd->add_flag("--no-surface-model{false}", p.surface_model, "thresholds and morphology alone, no BET surface");
+    cmd->add_option("--brain-csf-margin-mm", p.brain_csf_margin_mm, "target brain: CSF layer kept over the cortex")->capture_default_str();
+    cmd->add_option("--envelope-margin-mm", p.envelope_margin_mm, "reach of tissue beyond the surface model")->capture_default_str();
     cmd->add_option("--erode-mm", p.erode_mm, "erosion radius separating brain from scalp")->capture_default_str();
     cmd->add_option("--close-mm", p.close_mm, "closing radius (sulci, envelope)")->capture_default_str();
     cmd->add_option("--final-dilate-mm", p.final_dilate_mm, "final margin (negative: erosion)")->capture_default_str();
+    cmd->add_option("--bias-sigma-mm", p.bias_sigma_mm, "bias-field smoothing (0: none)")->capture_default_str();
+    cmd->add_option("--reconstruct-mm", p.reconstruct_mm, "reconstruction reach from the eroded brain")->capture_default_str();
     cmd->add_option("--tissue-split", p.tissue_split, "tissue threshold: csf + k (gm - csf)")->capture_default_str();
     cmd->add_option("--csf-split", p.csf_split, "extra-axial CSF threshold: csf + k (gm - csf)")->capture_default_str();
-    cmd->add_option("--csf-margin-mm", p.csf_margin_mm, "CSF growth beyond the brain envelope")->capture_default_str();
+    cmd->add_option("--csf-margin-mm", p.csf_margin_mm, "target intracranial: CSF growth beyond the tissue envelope")->capture_default_str();
     cmd->add_option("--bright-limit", p.bright_limit, "upper threshold: wm + k (wm - gm)")->capture_default_str();
 
     cmd->callback([o] {
@@ -63,6 +73,10 @@ void add_skullstrip(CLI::App& app) {
                                     {"out", o->out},
                                     {"brain_ml", info.brain_ml},
                                     {"head_ml", info.head_ml},
+                                    {"target", o->params.target == SkullStripTarget::brain ? "brain" : "intracranial"},
+                                    {"working_spacing_mm", info.working_spacing_mm},
+                                    {"surface_model_ml", info.envelope_ml},
+                                    {"surface_model_used", info.envelope_used},
                                     {"seconds_strip", strip_s},
                                     {"seconds_total", total_s},
                                     {"thresholds", {{"background", info.t_background},

@@ -6,6 +6,7 @@
 #include <itkConnectedComponentImageFilter.h>
 #include <itkImage.h>
 #include <itkSignedMaurerDistanceMapImageFilter.h>
+#include <itkSmoothingRecursiveGaussianImageFilter.h>
 
 #include <algorithm>
 #include <array>
@@ -172,6 +173,32 @@ MaskImage::Pointer pick_overlapping(const MaskImage* m, const MaskImage* seed) {
     return out;
 }
 
+using FloatImage = itk::Image<float, 3>;
+
+FloatImage::Pointer new_float(const Block& b) {
+    auto img = FloatImage::New();
+    FloatImage::RegionType region;
+    FloatImage::SizeType size;
+    FloatImage::SpacingType spacing;
+    for (int a = 0; a < 3; ++a) {
+        size[a] = itk::SizeValueType(b.dims[a]);
+        spacing[a] = b.spacing_mm[a];
+    }
+    region.SetSize(size);
+    img->SetRegions(region);
+    img->SetSpacing(spacing);
+    img->Allocate();
+    return img;
+}
+
+FloatImage::Pointer smooth(const FloatImage* f, double sigma_mm) {
+    auto g = itk::SmoothingRecursiveGaussianImageFilter<FloatImage, FloatImage>::New();
+    g->SetInput(f);
+    g->SetSigma(sigma_mm);
+    g->Update();
+    return g->GetOutput();
+}
+
 // Robust percentiles on a strided sample (the exact value does not matter, the stability does).
 std::array<double, 2> percentiles(const float* v, size_t n, double qa, double qb) {
     const size_t stride = std::max<size_t>(1, n / 2'000'000);
@@ -216,6 +243,8 @@ std::array<double, 3> three_means(std::vector<float>& s) {
     return c;
 }
 
+}  // namespace
+
 void check_config(const SkullStripConfig& c) {
     auto in = [](double v, double lo, double hi) { return std::isfinite(v) && v >= lo && v <= hi; };
     auto bad = [](const char* field, double v, const char* range) {
@@ -229,14 +258,16 @@ void check_config(const SkullStripConfig& c) {
     if (!in(c.close_mm, 0.0, 30.0)) bad("close_mm", c.close_mm, "[0, 30]");
     if (!in(c.csf_split, -2.0, 1.0)) bad("csf_split", c.csf_split, "[-2, 1]");
     if (!in(c.csf_margin_mm, 0.0, 20.0)) bad("csf_margin_mm", c.csf_margin_mm, "[0, 20]");
+    if (!in(c.reconstruct_mm, 0.0, 30.0)) bad("reconstruct_mm", c.reconstruct_mm, "[0, 30]");
+    if (!in(c.bias_sigma_mm, 0.0, 100.0)) bad("bias_sigma_mm", c.bias_sigma_mm, "[0, 100]");
+    if (!in(c.envelope_margin_mm, 0.0, 20.0)) bad("envelope_margin_mm", c.envelope_margin_mm, "[0, 20]");
     if (!in(c.final_dilate_mm, -10.0, 10.0)) bad("final_dilate_mm", c.final_dilate_mm, "[-10, 10]");
     if (!in(c.min_brain_ml, 0.0, 1e5) || !in(c.max_brain_ml, c.min_brain_ml, 1e6))
         bad("max_brain_ml", c.max_brain_ml, "[min_brain_ml, 1e6]");
 }
 
-}  // namespace
 
-void skull_strip_mask(const Grid& grid, const float* voxels, const SkullStripConfig& cfg,
+void skull_strip_mask(const Grid& grid, const float* voxels, const uint8_t* envelope, const SkullStripConfig& cfg,
                       const StepFn& step, std::vector<uint8_t>& mask, SkullStripReport& rep) {
     check_config(cfg);
     for (int a = 0; a < 3; ++a)
@@ -349,34 +380,73 @@ void skull_strip_mask(const Grid& grid, const float* voxels, const SkullStripCon
     rep.t_low = t_low;
     rep.t_high = t_high;
 
-    // 4. Candidate brain tissue: between CSF/GM and a bit above WM (drops most scalp fat and marrow).
-    step("tissue threshold", 0.25);
-    auto cand = new_mask(box);
-    {
-        uint8_t* cp = cand->GetBufferPointer();
-        for (size_t i = 0; i < n; ++i) cp[i] = (img[i] >= t_low && img[i] <= t_high) ? 1 : 0;
+    // The envelope (BET surface) bounds everything: it stops the leaks through the skull base,
+    // the optic nerves and the foramen magnum that thresholds and morphology alone let through.
+    MaskImage::Pointer env;
+    if (envelope) {
+        auto e = new_mask(box);
+        uint8_t* ep = e->GetBufferPointer();
+        for (int k = 0; k < box.dims[2]; ++k)
+            for (int j = 0; j < box.dims[1]; ++j)
+                std::copy_n(envelope + full.linear(box.lo[0], box.lo[1] + j, box.lo[2] + k), box.dims[0],
+                            ep + box.linear(0, j, k));
+        env = morph(e, box, cfg.envelope_margin_mm);
     }
 
-    // 5. Erosion cuts the thin bridges (dura, vessels, optic nerves, temporal muscle contacts)
-    //    between brain and scalp, so the brain becomes its own component.
-    step("erosion", 0.3);
-    auto core = morph(cand, box, -cfg.erode_mm);
-
-    // 6. The brain = the eroded component that overlaps most a sphere around the head centre.
-    step("components", 0.38);
-    auto seed = pick_central(core, box, dist2_mm, 0.5 * radius_mm);
-    if (!seed)
-        throw InputError(kInput, "no brain-like region found at the centre of the head (is this a T1 head MRI?)");
-    core = nullptr;
-
-    // 7. Reconstruction: grow the seed back by the erosion radius (plus half a voxel for the
-    //    distance-map rounding), inside the candidate tissue only, so gyri keep their shape.
-    step("reconstruction", 0.45);
+    // 4-7. Brain tissue: threshold, erode, pick the central component, reconstruct.
     const double max_sp = std::max({box.spacing_mm[0], box.spacing_mm[1], box.spacing_mm[2]});
-    {
-        auto grown = morph(seed, box, cfg.erode_mm + 0.5 * max_sp);
+    auto tissue = [&](double f0, double f1) {
+        // Candidate tissue: between CSF/GM and a bit above WM (drops most scalp fat and marrow).
+        step("tissue threshold", f0);
+        auto cand = new_mask(box);
+        uint8_t* cp = cand->GetBufferPointer();
+        for (size_t i = 0; i < n; ++i) cp[i] = (img[i] >= t_low && img[i] <= t_high) ? 1 : 0;
+        if (env) and_into(cand, env);
+        // Erosion cuts the thin bridges (dura, vessels, optic nerves, muscle contacts) between
+        // brain and scalp, so the brain becomes its own component: the one nearest the head centre.
+        step("erosion", f0 + 0.25 * (f1 - f0));
+        auto core = morph(cand, box, -cfg.erode_mm);
+        step("components", f0 + 0.5 * (f1 - f0));
+        auto seed = pick_central(core, box, dist2_mm, 0.5 * radius_mm);
+        if (!seed)
+            throw InputError(kInput, "no brain-like region found at the centre of the head (is this a T1 head MRI?)");
+        core = nullptr;
+        // Reconstruction: the candidate tissue connected to the seed within reconstruct_mm of it
+        // (at least the erosion radius plus half a voxel for the distance-map rounding). This
+        // brings back thin gyri the erosion cut off, and the distance bound stops leaks.
+        step("reconstruction", f0 + 0.75 * (f1 - f0));
+        auto grown = morph(seed, box, std::max(cfg.reconstruct_mm, cfg.erode_mm + 0.5 * max_sp));
         and_into(grown, cand);
-        seed = grown;
+        return pick_overlapping(grown, seed);
+    };
+    auto seed = tissue(0.25, 0.4);
+
+    // Bias field: cortex far from the coil is darker (seg3d's vertex), so one threshold cuts it.
+    // Estimate the field as the smoothed WM intensity of the tissue found (normalised convolution),
+    // flatten it, and find the tissue again.
+    if (cfg.bias_sigma_mm > 0) {
+        step("bias field", 0.4);
+        const double t_wm = 0.5 * (cls[1] + cls[2]);
+        auto num = new_float(box), den = new_float(box);
+        {
+            float* np = num->GetBufferPointer();
+            float* dp = den->GetBufferPointer();
+            const uint8_t* sp = seed->GetBufferPointer();
+            for (size_t i = 0; i < n; ++i) {
+                const bool wm = sp[i] && img[i] >= t_wm;
+                np[i] = wm ? img[i] : 0.f;
+                dp[i] = wm ? 1.f : 0.f;
+            }
+        }
+        const auto sn = smooth(num, cfg.bias_sigma_mm), sd = smooth(den, cfg.bias_sigma_mm);
+        const float* np = sn->GetBufferPointer();
+        const float* dp = sd->GetBufferPointer();
+        for (size_t i = 0; i < n; ++i) {
+            if (dp[i] < 0.05f) continue;  // too far from any WM to know the field
+            const double b = double(np[i]) / double(dp[i]);
+            img[i] = float(img[i] * std::clamp(cls[2] / b, 0.67, 1.5));
+        }
+        seed = tissue(0.45, 0.55);
     }
 
     // 8. Closing takes in the sulcal CSF and smooths the outer surface: the brain envelope.
@@ -397,11 +467,14 @@ void skull_strip_mask(const Grid& grid, const float* voxels, const SkullStripCon
             const uint8_t* sp = seed->GetBufferPointer();
             for (size_t i = 0; i < n; ++i) ip[i] = (sp[i] || (ip[i] && img[i] >= t_csf)) ? 1 : 0;
         }
+        if (env) and_into(ic, env);
         step("intracranial CSF", 0.7);
         ic = pick_overlapping(ic, seed);
         step("closing", 0.75);
         seed = close(ic, box, cfg.close_mm);
     }
+
+    if (env) and_into(seed, env);
 
     // 10. Fill enclosed cavities (ventricles, dark lesions).
     step("hole filling", 0.85);

@@ -17,11 +17,17 @@ struct SkullStripConfig {
     double csf_margin_mm = 6.0;
     double bright_limit = 2.0;
     double erode_mm = 2.0;
+    double reconstruct_mm = 6.0;
+    double bias_sigma_mm = 20.0;
     double close_mm = 8.0;
     double final_dilate_mm = 0.0;
+    double envelope_margin_mm = 3.0;
     double min_brain_ml = 500.0;
     double max_brain_ml = 2500.0;
 };
+
+/// Throws cf::InputError naming the first field out of its documented range.
+void check_config(const SkullStripConfig& cfg);
 
 /// What the pipeline found, for logs and tuning.
 struct SkullStripReport {
@@ -34,9 +40,11 @@ struct SkullStripReport {
 /// Called between steps with a stage name and the fraction done; may throw (cancellation).
 using StepFn = std::function<void(const char* stage, double fraction)>;
 
-/// Binary brain mask (0/1) of a T1 head on `grid` (only dims and spacing are used).
+/// Binary brain mask (0/1) of a T1 head on `grid` (only dims and spacing are used). When
+/// `envelope` (0/1 on the grid, e.g. the BET surface) is given, brain tissue and CSF are only
+/// taken within cfg.envelope_margin_mm of it.
 /// Throws cf::InputError when no head or no brain-like region is found.
-void skull_strip_mask(const Grid& grid, const float* voxels, const SkullStripConfig& cfg,
+void skull_strip_mask(const Grid& grid, const float* voxels, const uint8_t* envelope, const SkullStripConfig& cfg,
                       const StepFn& step, std::vector<uint8_t>& mask, SkullStripReport& report);
 
 }  // namespace cf::itkb

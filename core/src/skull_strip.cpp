@@ -9,39 +9,113 @@
 #include <opencv2/imgproc.hpp>
 
 #include "cortexfuse/core/error.hpp"
+#include "bet_surface.hpp"
 #include "itk_skull_strip.hpp"
 
 namespace cf {
 
+namespace {
+
+// Working spacing: anisotropic scans (thick DICOM slices) are resampled to an isotropic grid,
+// because both the surface model and the distance-map morphology assume similar reach in every
+// direction. Returns 0 when the volume is used as it is.
+double working_spacing_mm(const VolumeGeometry& g) {
+    const double lo = g.spacing_mm.minCoeff(), hi = g.spacing_mm.maxCoeff();
+    if (hi <= 1.3 * lo) return 0.0;
+    return std::clamp(std::cbrt(g.spacing_mm.prod()), 1.0, 2.0);
+}
+
+}  // namespace
+
 LabelVolume skull_strip(const Volume& t1, const SkullStripParams& p, const Progress* progress,
                         SkullStripInfo* info) {
+    const std::string kName = "skull strip";
     if (t1.voxels.size() != t1.geom.voxel_count() || t1.voxels.empty())
-        throw InputError("skull strip", "volume voxels do not match its dimensions");
-    itkb::Grid grid;
-    grid.dims = t1.geom.dims;
-    for (int a = 0; a < 3; ++a) grid.spacing[a] = t1.geom.spacing_mm[a];
-    // Only dims and spacing matter: the pipeline works in index space with mm distances.
+        throw InputError(kName, "volume voxels do not match its dimensions");
+    for (float x : t1.voxels)
+        if (!std::isfinite(x)) throw InputError(kName, "volume holds NaN or infinite intensities");
+    for (int a = 0; a < 3; ++a)
+        if (t1.geom.dims[a] < 8)
+            throw InputError(kName, "volume too small (" + std::to_string(t1.geom.dims[a]) +
+                                        " voxels along an axis) to hold a head");
+
+    // All parameters are checked before any work.
+    if (!(p.bet_fraction >= 0.05 && p.bet_fraction <= 0.95))
+        throw InputError("SkullStripParams.bet_fraction", "value out of range [0.05, 0.95]");
     itkb::SkullStripConfig cfg;
     cfg.background_frac = p.background_frac;
     cfg.csf_gm_split = p.tissue_split;
     cfg.csf_split = p.csf_split;
-    cfg.csf_margin_mm = p.csf_margin_mm;
+    cfg.csf_margin_mm = p.target == SkullStripTarget::intracranial ? p.csf_margin_mm : p.brain_csf_margin_mm;
     cfg.bright_limit = p.bright_limit;
     cfg.erode_mm = p.erode_mm;
+    cfg.bias_sigma_mm = p.bias_sigma_mm;
+    cfg.reconstruct_mm = p.reconstruct_mm;
     cfg.close_mm = p.close_mm;
+    cfg.envelope_margin_mm = p.envelope_margin_mm;
     cfg.final_dilate_mm = p.final_dilate_mm;
     cfg.min_brain_ml = p.min_brain_ml;
     cfg.max_brain_ml = p.max_brain_ml;
+    itkb::check_config(cfg);
+    if (!(p.brain_csf_margin_mm >= 0 && p.brain_csf_margin_mm <= 20))
+        throw InputError("SkullStripParams.brain_csf_margin_mm", "value out of range [0, 20]");
+    // Partial-volume bridges between brain and scalp are as thick as the thickest voxel side:
+    // the erosion must reach across one.
+    cfg.erode_mm = std::max(cfg.erode_mm, 0.85 * t1.geom.spacing_mm.maxCoeff());
 
     const itkb::StepFn step = [progress](const char* stage, double fraction) {
         if (!progress) return;
         progress->check();
         (*progress)(std::string("skull strip: ") + stage, fraction);
     };
-    LabelVolume out;
-    out.geom = t1.geom;
+    step("start", 0.0);
+
+    // Work on an isotropic copy when the scan is strongly anisotropic.
+    const double iso_mm = working_spacing_mm(t1.geom);
+    Volume resampled;
+    if (iso_mm > 0) {
+        step("resampling to an isotropic grid", 0.01);
+        resampled = resample(t1, isotropic_grid(t1.geom, iso_mm), 0.f);
+    }
+    const Volume& v = iso_mm > 0 ? resampled : t1;
+
+    itkb::Grid grid;
+    grid.dims = v.geom.dims;
+    for (int a = 0; a < 3; ++a) grid.spacing[a] = v.geom.spacing_mm[a];
+    // Only dims and spacing matter: both stages work in index space with mm distances.
+    const std::array<double, 3> sp{grid.spacing[0], grid.spacing[1], grid.spacing[2]};
+    const double voxel_ml = sp[0] * sp[1] * sp[2] / 1000.0;
+
+    // 1. The BET surface: a smooth envelope of the brain that cannot leak through thin bridges.
+    bet::BetParams bp;
+    bp.fractional_threshold = p.bet_fraction;
+    bet::BetStats bs;
+    bet::HeadFrame frame;
+    {
+        // Superior (world +S of LPS) in index-space mm: the direction cosines are orthonormal.
+        const Eigen::Vector3d up = v.geom.direction.transpose() * Eigen::Vector3d::UnitZ();
+        frame.up = {up[0], up[1], up[2]};
+    }
+    std::vector<uint8_t> envelope;
+    double envelope_ml = 0;
+    if (p.surface_model) {
+        const auto mesh = bet::bet_surface(v.voxels.data(), grid.dims, sp, frame, bp, bs,
+                                           [&](double f) { step("surface model", 0.02 + 0.2 * f); });
+        envelope = bet::fill_mesh(mesh, grid.dims, sp);
+        envelope_ml = double(std::count(envelope.begin(), envelope.end(), uint8_t(1))) * voxel_ml;
+        // A surface that collapsed or swallowed the head bounds nothing: morphology alone then.
+        if (envelope_ml < 0.5 * p.min_brain_ml || envelope_ml > 2.0 * p.max_brain_ml) envelope.clear();
+    }
+
+    // 2. Tissue classes, thresholds and morphology inside the envelope (itk_skull_strip.cpp).
+    const itkb::StepFn step2 = [&](const char* stage, double f) { step(stage, 0.22 + 0.75 * f); };
+    LabelVolume work;
+    work.geom = v.geom;
     itkb::SkullStripReport rep;
-    itkb::skull_strip_mask(grid, t1.voxels.data(), cfg, step, out.voxels, rep);
+    itkb::skull_strip_mask(grid, v.voxels.data(), envelope.empty() ? nullptr : envelope.data(), cfg, step2,
+                           work.voxels, rep);
+
+    LabelVolume out = iso_mm > 0 ? resample_nearest(work, t1.geom) : std::move(work);
     if (info) {
         info->p02 = rep.p02;
         info->p98 = rep.p98;
@@ -53,8 +127,12 @@ LabelVolume skull_strip(const Volume& t1, const SkullStripParams& p, const Progr
         info->gm = rep.gm;
         info->wm = rep.wm;
         info->head_ml = rep.head_ml;
-        info->brain_ml = rep.brain_ml;
+        info->brain_ml = double(out.count_nonzero()) * t1.geom.spacing_mm.prod() / 1000.0;
+        info->working_spacing_mm = iso_mm > 0 ? iso_mm : 0.0;
+        info->envelope_ml = envelope_ml;
+        info->envelope_used = !envelope.empty();
     }
+    step("done", 1.0);
     return out;
 }
 

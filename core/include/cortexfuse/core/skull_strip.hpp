@@ -9,9 +9,21 @@
 
 namespace cf {
 
+/// What the mask should hold. `brain`: brain tissue with the CSF of sulci and ventricles, its
+/// outer surface on the cortex (what the ray caster must show; the default, used by register).
+/// `intracranial`: also the extra-axial CSF up to the inner table of the skull.
+enum class SkullStripTarget { brain, intracranial };
+
 /// Tuning of skull_strip(). The defaults are what was validated (docs/skull-stripping.md);
 /// every field is range-checked (InputError naming the field).
 struct SkullStripParams {
+    SkullStripTarget target = SkullStripTarget::brain;
+    /// Bound the segmentation by the BET-like surface model (off: thresholds and morphology alone).
+    bool surface_model = true;
+    /// BET's fractional intensity threshold for the surface model (lower: larger envelope). [0.05, 0.95]
+    double bet_fraction = 0.5;
+    /// Tissue and CSF are only taken within this distance of the BET surface. [0, 20]
+    double envelope_margin_mm = 3.0;
     /// Background level = p2 + background_frac * (p98 - p2) of all voxels (as FSL BET). [0.01, 0.5]
     double background_frac = 0.1;
     /// Brain-tissue threshold between the CSF and GM class means found at the head centre:
@@ -23,12 +35,21 @@ struct SkullStripParams {
     /// Erosion radius that disconnects brain tissue from scalp and dura before the brain
     /// component is picked; larger is safer against bridges but loses thin gyri. [0.5, 20]
     double erode_mm = 2.0;
+    /// Reconstruction reach: candidate tissue connected to the eroded brain and within this
+    /// distance of it is brain (thin gyri the erosion cut off come back). [0, 30]
+    double reconstruct_mm = 6.0;
+    /// Smoothing (Gaussian sigma) of the intensity-bias estimate from the WM found; the tissue
+    /// is then found again on the flattened volume. 0 = no bias correction. [0, 100]
+    double bias_sigma_mm = 20.0;
     /// Closing radius: fills sulci and smooths the envelope; 0 = no closing. [0, 30]
     double close_mm = 8.0;
+    /// Target brain: the CSF growth's reach beyond the tissue envelope (the thin CSF layer over the
+    /// cortex that FreeSurfer's brain mask also holds). [0, 20]
+    double brain_csf_margin_mm = 6.0;
     /// Extra-axial CSF threshold, between bone (darkest) and CSF: csf + csf_split * (gm - csf). [-2, 1]
     double csf_split = -0.6;
-    /// How far beyond the brain envelope the CSF growth may reach (up to the inner table of the
-    /// skull); also what stops it from leaking through the skull base. 0 = tight brain mask. [0, 20]
+    /// Target intracranial only: how far beyond the brain envelope the CSF growth may reach (up to
+    /// the inner table of the skull); also what stops it from leaking through the skull base. [0, 20]
     double csf_margin_mm = 6.0;
     /// Final dilation (negative: erosion) of the mask. [-10, 10]
     double final_dilate_mm = 0.0;
@@ -43,6 +64,9 @@ struct SkullStripInfo {
     double t_background = 0, t_low = 0, t_high = 0, t_csf = 0;  // thresholds used, volume units
     double csf = 0, gm = 0, wm = 0;               // tissue class means at the head centre
     double head_ml = 0, brain_ml = 0;
+    double working_spacing_mm = 0;                // isotropic grid used for an anisotropic scan; 0: none
+    double envelope_ml = 0;                       // volume inside the BET surface
+    bool envelope_used = false;                   // false: the surface failed, morphology alone
 };
 
 /// Brain mask of a T1 head volume with skull (any intensity range: uint8, int16, scaled),
