@@ -43,6 +43,8 @@ void PhantomParams::validate() const {
     if (!(landmark_world_sd_mm >= 0 && landmark_world_sd_mm <= 10)) bad("landmark_world_sd_mm", "must be in [0, 10]");
     if (landmarks_min < 4 || landmarks_max > 12 || landmarks_min > landmarks_max) bad("landmarks", "count range must lie within 4..12");
     if (targets_min < 5 || targets_max > 200 || targets_min > targets_max) bad("targets", "count range must lie within 5..200");
+    if (fixed_camera) fixed_camera->validate("phantom fixed_camera");
+    if (fixed_T_camera_from_world && !is_rigid(*fixed_T_camera_from_world)) bad("fixed_T_camera_from_world", "is not a rigid transform");
 }
 
 namespace {
@@ -410,6 +412,7 @@ PhantomCase generate_phantom_case(const PhantomSurface& S, const PhantomParams& 
         H = int(std::lround(W / asp));
     }
     if (dslr) W = P.dslr_width, H = P.dslr_height;
+    if (P.fixed_camera) W = P.fixed_camera->width, H = P.fixed_camera->height;
     // Render at most ~1600 px wide, upscale after (a DSLR photo is rarely sharper than that).
     const double render_scale = std::min(1.0, 1600.0 / W);
     const int rw = std::max(32, int(std::lround(W * render_scale))), rh = std::max(32, int(std::lround(H * render_scale)));
@@ -469,7 +472,7 @@ PhantomCase generate_phantom_case(const PhantomSurface& S, const PhantomParams& 
     Vec3 up = view_dir.unitOrthogonal();
     const double roll = rng.uni(0, 2 * kPi);
     up = Eigen::AngleAxisd(roll, view_dir) * up;
-    const Pose T = look_at(eye, target, up);
+    const Pose T = P.fixed_T_camera_from_world ? *P.fixed_T_camera_from_world : look_at(eye, target, up);
     out.T_camera_from_world = T;
 
     Intrinsics K;
@@ -482,6 +485,7 @@ PhantomCase generate_phantom_case(const PhantomSurface& S, const PhantomParams& 
     K.cy = (H - 1) * 0.5 + rng.uni(-0.02, 0.02) * H;
     const bool distorted = rng.chance(P.distortion_prob);
     if (distorted) K.distortion = random_distortion(rng);
+    if (P.fixed_camera) K = *P.fixed_camera;
     out.camera = K;
     const Intrinsics Kr = K.resized(rw, rh);
 

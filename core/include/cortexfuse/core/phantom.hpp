@@ -17,6 +17,7 @@
 #include <cstdint>
 #include <filesystem>
 #include <opencv2/core.hpp>
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -59,6 +60,12 @@ struct PhantomParams {
     int targets_min = 15, targets_max = 30;
     /// Fraction of PNG photos (the rest are JPEG); DSLR-size cases are always JPEG. 0..1.
     double png_fraction = 0.5;
+
+    /// The simulated camera: photograph the case's scene (craniotomy, vessels, look: all from
+    /// the seed, so unchanged) from this pose and/or with this camera instead of the random
+    /// framing. Unset (the default): the random framing. The random draws are made either way.
+    std::optional<Pose> fixed_T_camera_from_world;
+    std::optional<Intrinsics> fixed_camera;
 
     /// Throws InputError("phantom " + field, ...) when a value is out of range.
     void validate() const;
