@@ -117,82 +117,109 @@ void main() {
     bool hit = false, refined = false;
     const float step = u_step;
     if (t1 > t0) {
+        // Three phases, so that each loop is short: search (empty-space skipping and the
+        // opacity test only), refinement (once per ray), compositing (shading) while samples
+        // contribute. A software rasteriser (llvmpipe) runs every branch of a loop body for
+        // all lanes of a SIMD group, so one loop holding all three would cost them all at
+        // every step. The samples taken and their order are the CPU ray caster's.
         float t = ceil(t0 / step) * step;
-        while (t <= t1 && t < t_mesh) {
-            // Empty-space skipping: jump to where the ray leaves the invisible brick(s).
-            bool visible = false;
-            float t_exit = FLT_BIG;
-            for (int l = 0; l < NLAYERS; ++l) {
-                if (lt1[l] <= lt0[l]) continue;
-                if (t < lt0[l]) { t_exit = min(t_exit, lt0[l]); continue; }
-                if (t > lt1[l]) continue;
-                const vec3 p = o[l] + t * d[l];
-                const ivec3 b = ivec3(p) / BRICK;
-                if (texelFetch(u_bricks[l], b, 0).r != 0u) { visible = true; break; }
-                for (int a = 0; a < 3; ++a) {
-                    const float da = d[l][a];
-                    if (da > 1e-12) t_exit = min(t_exit, t + (float((b[a] + 1) * BRICK) - p[a]) / da);
-                    else if (da < -1e-12) t_exit = min(t_exit, t + (float(b[a] * BRICK) - p[a]) / da);
+        bool done = false;
+        bool have_ref = false;  // the next composited sample is the refined surface crossing
+        float t_ref = 0.0;
+        while (!done) {
+            bool found = false;
+            while (t <= t1 && t < t_mesh) {
+                bool visible = false;
+                float t_exit = FLT_BIG;
+                for (int l = 0; l < NLAYERS; ++l) {
+                    if (lt1[l] <= lt0[l]) continue;
+                    if (t < lt0[l]) { t_exit = min(t_exit, lt0[l]); continue; }
+                    if (t > lt1[l]) continue;
+                    const vec3 p = o[l] + t * d[l];
+                    const ivec3 b = ivec3(p) / BRICK;
+                    if (texelFetch(u_bricks[l], b, 0).r != 0u) { visible = true; break; }
+                    for (int a = 0; a < 3; ++a) {
+                        const float da = d[l][a];
+                        if (da > 1e-12) t_exit = min(t_exit, t + (float((b[a] + 1) * BRICK) - p[a]) / da);
+                        else if (da < -1e-12) t_exit = min(t_exit, t + (float(b[a] * BRICK) - p[a]) / da);
+                    }
+                    t_exit = min(t_exit, lt1[l]);
                 }
-                t_exit = min(t_exit, lt1[l]);
+                if (!visible) {
+                    // Jump to where the ray leaves the invisible brick(s), on the lattice.
+                    t = max(ceil(t_exit / step + 1e-4) * step, t + step);
+                    continue;
+                }
+                for (int l = 0; l < NLAYERS; ++l) {
+                    if (lt1[l] <= lt0[l] || t < lt0[l] || t > lt1[l]) continue;
+                    const float s = vol(l, o[l] + t * d[l]);
+                    if (texelFetch(u_lut, ivec2(int(s + 0.5), l), 0).a * u_weight[l] > 0.0) found = true;
+                }
+                if (found) break;
+                t += step;
             }
-            if (!visible) {
-                t = max(ceil(t_exit / step + 1e-4) * step, t + step);
-                continue;
-            }
-            vec3 c_sum = vec3(0.0);
-            float a_sum = 0.0, transmit = 1.0;
-            int n_contrib = 0;
-            float t_at = t;
-            for (int l = 0; l < NLAYERS; ++l) {
-                if (lt1[l] <= lt0[l] || t < lt0[l] || t > lt1[l]) continue;
-                vec3 p = o[l] + t * d[l];
-                const float s = vol(l, p);
-                const vec4 e = texelFetch(u_lut, ivec2(int(s + 0.5), l), 0);
-                float a = e.a * u_weight[l];
-                if (a <= 0.0) continue;
-                if (l == 0 && !refined && u_iso >= 0.0 && s >= u_iso) {
+            if (!found) break;
+            if (!refined && u_iso >= 0.0 && lt1[0] > lt0[0] && t >= lt0[0] && t <= lt1[0]) {
+                const float s0 = vol(0, o[0] + t * d[0]);
+                if (s0 >= u_iso && texelFetch(u_lut, ivec2(int(s0 + 0.5), 0), 0).a * u_weight[0] > 0.0) {
                     // First crossing of the surface level, between the last sample and this one.
                     refined = true;
+                    have_ref = true;
                     float ta = t - step, tb = t;
                     for (int it = 0; it < 6; ++it) {
                         const float tm = 0.5 * (ta + tb);
                         if (vol_clamped(0, o[0] + tm * d[0]) >= u_iso) tb = tm;
                         else ta = tm;
                     }
-                    t_at = tb;
-                    p = o[0] + tb * d[0];
+                    t_ref = tb;
                 }
-                float shade = 1.0;
-                const bool grad_op = u_grad_n[l] > 0;
-                if (u_shading || grad_op) {
-                    const vec3 gi = 0.5 * vec3(vol_clamped(l, p + vec3(1, 0, 0)) - vol_clamped(l, p - vec3(1, 0, 0)),
-                                               vol_clamped(l, p + vec3(0, 1, 0)) - vol_clamped(l, p - vec3(0, 1, 0)),
-                                               vol_clamped(l, p + vec3(0, 0, 1)) - vol_clamped(l, p - vec3(0, 0, 1)));
-                    const vec3 gw = transpose(mat3(u_index_from_world[l])) * gi;
-                    const float gn = length(gw);
-                    if (grad_op) a *= gradient_factor(l, gn * u_grad_scale[l]);
-                    if (u_shading) shade = u_ambient + u_diffuse * (gn > 1e-6 ? abs(dot(gw, dir_world)) / gn : 0.0);
-                }
-                const float a_step = a >= 1.0 ? 1.0 : 1.0 - pow(1.0 - a, step);
-                c_sum += a_step * e.rgb * shade;
-                a_sum += a_step;
-                transmit *= 1.0 - a_step;
-                ++n_contrib;
             }
-            if (n_contrib > 0) {
+            while (t <= t1 && t < t_mesh) {
+                vec3 c_sum = vec3(0.0);
+                float a_sum = 0.0, transmit = 1.0;
+                int n_contrib = 0;
+                bool need_refine = false;
+                for (int l = 0; l < NLAYERS; ++l) {
+                    if (lt1[l] <= lt0[l] || t < lt0[l] || t > lt1[l]) continue;
+                    vec3 p = o[l] + t * d[l];
+                    const float s = vol(l, p);
+                    const vec4 e = texelFetch(u_lut, ivec2(int(s + 0.5), l), 0);
+                    float a = e.a * u_weight[l];
+                    if (a <= 0.0) continue;
+                    if (l == 0 && !refined && u_iso >= 0.0 && s >= u_iso) { need_refine = true; break; }
+                    if (l == 0 && have_ref) p = o[0] + t_ref * d[0];
+                    float shade = 1.0;
+                    const bool grad_op = u_grad_n[l] > 0;
+                    if (u_shading || grad_op) {
+                        const vec3 gi = 0.5 * vec3(vol_clamped(l, p + vec3(1, 0, 0)) - vol_clamped(l, p - vec3(1, 0, 0)),
+                                                   vol_clamped(l, p + vec3(0, 1, 0)) - vol_clamped(l, p - vec3(0, 1, 0)),
+                                                   vol_clamped(l, p + vec3(0, 0, 1)) - vol_clamped(l, p - vec3(0, 0, 1)));
+                        const vec3 gw = transpose(mat3(u_index_from_world[l])) * gi;
+                        const float gn = length(gw);
+                        if (grad_op) a *= gradient_factor(l, gn * u_grad_scale[l]);
+                        if (u_shading) shade = u_ambient + u_diffuse * (gn > 1e-6 ? abs(dot(gw, dir_world)) / gn : 0.0);
+                    }
+                    const float a_step = a >= 1.0 ? 1.0 : 1.0 - pow(1.0 - a, step);
+                    c_sum += a_step * e.rgb * shade;
+                    a_sum += a_step;
+                    transmit *= 1.0 - a_step;
+                    ++n_contrib;
+                }
+                if (need_refine || n_contrib == 0) break;  // refine first / back to searching
                 // One layer: exactly the single-volume ray caster; several: weighted fusion.
                 const float sa = n_contrib == 1 ? a_sum : 1.0 - transmit;
-                const float w = (1.0 - alpha);
+                const float w = 1.0 - alpha;
                 c += n_contrib == 1 ? w * c_sum : w * (sa / a_sum) * c_sum;
                 alpha += w * sa;
                 if (!hit && alpha >= u_cov) {
                     hit = true;
-                    depth = t_at * ray_cam.z;
+                    depth = (have_ref ? t_ref : t) * ray_cam.z;
                 }
-                if (alpha >= u_term) break;
+                have_ref = false;
+                if (alpha >= u_term) { done = true; break; }
+                t += step;
             }
-            t += step;
+            if (!(t <= t1 && t < t_mesh)) break;
         }
     }
     if (z_mesh > 0.0 && alpha < u_term) {
