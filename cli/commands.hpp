@@ -13,6 +13,8 @@ void add_evaluate(CLI::App& app);
 void add_bench(CLI::App& app);
 void add_skullstrip(CLI::App& app);
 void add_landscape(CLI::App& app);
+void add_sim_tracker(CLI::App& app);
+void add_track(CLI::App& app);
 
 /// Runs `body`, turning cf::InputError and other exceptions into one line on stderr and exit 1
 /// (2 for cf::Cancelled). Every command's callback goes through it.

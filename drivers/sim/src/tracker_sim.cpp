@@ -236,7 +236,9 @@ struct TrackerSimulator::Impl {
     std::size_t script_next = 0;
     std::set<std::tuple<int, std::int64_t, std::string>> counted_blocks;
 
+    std::uint32_t last_tracking_frame = 0;
     mutable std::mutex mu;
+    std::vector<std::pair<std::uint32_t, std::int64_t>> written = std::vector<std::pair<std::uint32_t, std::int64_t>>(4096, {0xFFFFFFFFu, 0});
     std::map<Fault, std::uint64_t> counts;
     std::vector<std::int64_t> restored;
     std::vector<Fault> injected;  // from other threads
@@ -649,6 +651,7 @@ struct TrackerSimulator::Impl {
             if (!opt || p.size() > 4 || (*opt != 0x0001 && *opt != 0x0801)) return err(0x23);
             *tracking_reply = true;
             const std::uint32_t frame = frame_now();
+            last_tracking_frame = frame;
             if (n == "TX") return ascii(tx_text(static_cast<std::uint16_t>(*opt), frame));
             return cf::tracker::frame_binary_reply(bx_body(static_cast<std::uint16_t>(*opt), frame));
         }
@@ -735,6 +738,11 @@ struct TrackerSimulator::Impl {
         }
         write_bytes(r);
         owner->replies_sent_++;
+        if (!f) {
+            std::lock_guard lk(mu);
+            auto& slot = written[last_tracking_frame % written.size()];
+            if (slot.first != last_tracking_frame) slot = {last_tracking_frame, now_ns()};
+        }
     }
 
     void process_input(const std::uint8_t* p, std::size_t n) {
@@ -935,6 +943,13 @@ std::vector<std::int64_t> TrackerSimulator::link_restored_ns() const {
     std::lock_guard lk(impl_->mu);
     return impl_->restored;
 }
+std::optional<std::int64_t> TrackerSimulator::reply_written_ns(std::uint32_t frame) const {
+    std::lock_guard lk(impl_->mu);
+    const auto& slot = impl_->written[frame % impl_->written.size()];
+    if (slot.first != frame) return std::nullopt;
+    return slot.second;
+}
+
 void TrackerSimulator::inject(Fault f) {
     std::lock_guard lk(impl_->mu);
     impl_->injected.push_back(f);

@@ -60,6 +60,8 @@ void SessionConfig::validate(bool serial) const {
     check_range("command_timeout_ms", command_timeout.count(), 50, 10000);
     check_range("init_timeout_ms", init_timeout.count(), 100, 30000);
     check_range("reset_timeout_ms", reset_timeout.count(), 100, 30000);
+    check_range("gap_timeout_ms", gap_timeout.count(), 2, 1000);
+    check_range("max_consecutive_corrupt", max_consecutive_corrupt, 1, 1000);
     check_range("stale_after_ms", stale_after.count(), 50, 10000);
     check_range("max_backoff_ms", max_backoff.count(), 10, 10000);
     check_range("max_consecutive_timeouts", max_consecutive_timeouts, 1, 100);
@@ -223,15 +225,30 @@ void TrackerSession::run() {
     cv_.notify_all();
 }
 
-std::optional<Reply> TrackerSession::await_reply(std::chrono::milliseconds timeout, std::int64_t* receive_ns) {
+std::optional<Reply> TrackerSession::await_reply(std::chrono::milliseconds timeout, std::int64_t* receive_ns, bool* heard) {
     const auto deadline = std::chrono::steady_clock::now() + timeout;
+    auto last_byte = std::chrono::steady_clock::now();
     std::uint8_t buf[4096];
+    if (heard) *heard = false;
     for (;;) {
+        const std::uint64_t crc_before = decoder_.counters().crc_errors;
         if (auto r = decoder_.next()) return r;
-        const auto left = std::chrono::duration_cast<std::chrono::milliseconds>(deadline - std::chrono::steady_clock::now());
+        const auto now = std::chrono::steady_clock::now();
+        // A reply failed its CRC and nothing is pending: it is lost, do not wait for the deadline.
+        if (heard && *heard && decoder_.counters().crc_errors > crc_before && decoder_.buffered() == 0) return std::nullopt;
+        // A partial reply and no byte for gap_timeout: truncated. Drop it.
+        if (decoder_.buffered() > 0 && now - last_byte >= cfg_.gap_timeout) {
+            decoder_.clear();
+            return std::nullopt;
+        }
+        const auto left = std::chrono::duration_cast<std::chrono::milliseconds>(deadline - now);
         if (left.count() <= 0 || (stop_ && !shutting_down_)) return std::nullopt;
-        const std::size_t n = transport_->read(buf, std::min(left, std::chrono::milliseconds(50)));
+        auto wait = std::min(left, std::chrono::milliseconds(50));
+        if (decoder_.buffered() > 0) wait = std::min(wait, cfg_.gap_timeout);
+        const std::size_t n = transport_->read(buf, wait);
         if (n > 0) {
+            last_byte = std::chrono::steady_clock::now();
+            if (heard) *heard = true;
             if (receive_ns) *receive_ns = steady_ns();
             decoder_.feed(std::span<const std::uint8_t>(buf, n));
         }
@@ -363,7 +380,7 @@ void TrackerSession::setup() {
 
 void TrackerSession::stream() {
     const std::string request = encode_command(use_tx_ ? "TX" : "BX", "0801");
-    int consecutive_failures = 0;
+    int consecutive_failures = 0, consecutive_corrupt = 0;
     auto next_poll = std::chrono::steady_clock::now();
     while (!stop_) {
         if (const int n = beep_request_.exchange(0)) {
@@ -382,12 +399,14 @@ void TrackerSession::stream() {
         transport_->write(request);
         std::int64_t receive_ns = 0;
         std::optional<Reply> r;
+        bool heard = false, heard_any = false;
         // Skip replies of the wrong kind (stale bytes of an earlier command) until the deadline.
         const auto deadline = std::chrono::steady_clock::now() + cfg_.reply_timeout;
         for (;;) {
             const auto left = std::chrono::duration_cast<std::chrono::milliseconds>(deadline - std::chrono::steady_clock::now());
             if (left.count() <= 0) break;
-            r = await_reply(left, &receive_ns);
+            r = await_reply(left, &receive_ns, &heard);
+            heard_any = heard_any || heard;
             if (!r) break;
             if (use_tx_ || r->kind == Reply::Kind::binary) break;
             const Status st = classify(r->text);
@@ -396,6 +415,18 @@ void TrackerSession::stream() {
         }
         sync_decoder_counters();
         if (stop_) break;
+        if (!r && heard_any) {
+            // Bytes came but no good reply (CRC error, truncated, garbage): the link is alive.
+            {
+                std::lock_guard lk(mu_);
+                ++status_.lost_replies;
+            }
+            consecutive_failures = 0;
+            if (++consecutive_corrupt >= cfg_.max_consecutive_corrupt)
+                throw Recover(transport_->describe() + ": " + std::to_string(consecutive_corrupt) + " garbled tracking replies in a row (baud out of step?)");
+            next_poll = std::chrono::steady_clock::now();  // ask again at once
+            continue;
+        }
         if (!r) {
             {
                 std::lock_guard lk(mu_);
@@ -430,6 +461,7 @@ void TrackerSession::stream() {
             continue;
         }
         consecutive_failures = 0;
+        consecutive_corrupt = 0;
         publish(tr, receive_ns);
     }
 }

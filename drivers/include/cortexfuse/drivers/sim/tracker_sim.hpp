@@ -111,6 +111,9 @@ public:
     /// Inject a fault now (reply faults apply to the next BX/TX reply).
     void inject(Fault f);
     std::uint64_t replies_sent() const { return replies_sent_.load(); }
+    /// steady_ns when the first BX/TX reply carrying `frame_number` was completely written
+    /// (the last byte on the wire), for wire-to-frame latency; kept for the last 4096 frames.
+    std::optional<std::int64_t> reply_written_ns(std::uint32_t frame_number) const;
 
 private:
     struct Impl;

@@ -57,13 +57,15 @@ struct SessionConfig {
     ReplyMode reply_mode = ReplyMode::automatic;  ///< automatic: TX on firmware known to need it
     bool break_reset = true;                  ///< serial: reset with a break before INIT
     std::chrono::milliseconds poll_interval{8};       ///< BX/TX request period (2..1000)
-    std::chrono::milliseconds reply_timeout{150};     ///< BX/TX reply deadline (10..5000)
+    std::chrono::milliseconds reply_timeout{100};     ///< BX/TX reply deadline (10..5000)
+    std::chrono::milliseconds gap_timeout{20};        ///< a partial reply with no byte for this long is lost (2..1000)
     std::chrono::milliseconds command_timeout{1000};  ///< setup commands (50..10000)
     std::chrono::milliseconds init_timeout{5000};     ///< INIT incl. ERROR0C retries (100..30000)
     std::chrono::milliseconds reset_timeout{7000};    ///< wait for RESET after a break (100..30000)
     std::chrono::milliseconds stale_after{500};       ///< a tool not updated this long is stale (50..10000)
     std::chrono::milliseconds max_backoff{500};       ///< reconnect backoff ceiling (10..10000)
-    int max_consecutive_timeouts = 3;                 ///< then reset (serial) / reconnect (TCP) (1..100)
+    int max_consecutive_timeouts = 3;                 ///< silent requests, then reset (serial) / reconnect (TCP) (1..100)
+    int max_consecutive_corrupt = 30;                 ///< corrupt/garbled replies in a row, then the same (1..1000)
     /// Throws ConfigError naming the option and its range.
     void validate(bool serial) const;
 };
@@ -97,7 +99,7 @@ struct TrackerStatus {
     std::string transport, firmware, api_revision, reply_mode, last_error;
     int baud = 0;
     std::uint64_t frames = 0, duplicate_frames = 0, crc_errors = 0, resyncs = 0, discarded_bytes = 0,
-                  timeouts = 0, protocol_errors = 0, device_errors = 0, warnings = 0, reconnects = 0, resets = 0;
+                  timeouts = 0, lost_replies = 0, protocol_errors = 0, device_errors = 0, warnings = 0, reconnects = 0, resets = 0;
     double frame_rate_hz = 0;                   ///< new frames over the last second
     double latency_p50_us = 0, latency_p99_us = 0;  ///< wire-to-frame, last 1024 frames
     std::int64_t last_frame_steady_ns = 0;
@@ -134,7 +136,9 @@ private:
     void stream();
     void shutdown_device();
     std::string command(const std::string& name, const std::string& params, std::chrono::milliseconds timeout);
-    std::optional<Reply> await_reply(std::chrono::milliseconds timeout, std::int64_t* receive_ns);
+    /// A reply, or nullopt with *heard = whether any byte came (silence vs a corrupt or
+    /// truncated reply, which gives up after gap_timeout without bytes instead of the deadline).
+    std::optional<Reply> await_reply(std::chrono::milliseconds timeout, std::int64_t* receive_ns, bool* heard = nullptr);
     void set_state(TrackerStatus::State s);
     void note_error(const std::string& e);
     void sync_decoder_counters();
