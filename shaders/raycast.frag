@@ -25,6 +25,10 @@ layout(binding = 5) uniform usampler3D u_bricks[NLAYERS];  // 1 where a brick ca
 layout(binding = 9) uniform sampler2D u_lut;               // row l: layer l's rgb, opacity per mm
 layout(binding = 10) uniform sampler2D u_mesh_rgb;          // opaque geometry, drawn first
 layout(binding = 11) uniform sampler2D u_mesh_z;            // its camera-frame z (mm); 0: none
+// Central differences of the quantised volume per voxel (RGBA16F): trilinear
+// interpolation of them equals the central difference of the interpolated volume at +-1 voxel
+// (the CPU ray caster's gradient), in one fetch instead of six.
+layout(binding = 12) uniform sampler3D u_grad[NLAYERS];
 
 uniform mat3 u_R_world_from_camera;
 uniform vec3 u_cam_world;
@@ -191,9 +195,15 @@ void main() {
                     float shade = 1.0;
                     const bool grad_op = u_grad_n[l] > 0;
                     if (u_shading || grad_op) {
-                        const vec3 gi = 0.5 * vec3(vol_clamped(l, p + vec3(1, 0, 0)) - vol_clamped(l, p - vec3(1, 0, 0)),
-                                                   vol_clamped(l, p + vec3(0, 1, 0)) - vol_clamped(l, p - vec3(0, 1, 0)),
-                                                   vol_clamped(l, p + vec3(0, 0, 1)) - vol_clamped(l, p - vec3(0, 0, 1)));
+                        vec3 gi;
+                        if (all(greaterThanEqual(p, vec3(1.0))) && all(lessThan(p, u_dims[l] - 2.0 - 1e-3))) {
+                            gi = texture(u_grad[l], (p + 0.5) / u_dims[l]).rgb;
+                        } else {
+                            // Within a voxel of the border: the CPU's clamped samples, as they are.
+                            gi = 0.5 * vec3(vol_clamped(l, p + vec3(1, 0, 0)) - vol_clamped(l, p - vec3(1, 0, 0)),
+                                            vol_clamped(l, p + vec3(0, 1, 0)) - vol_clamped(l, p - vec3(0, 1, 0)),
+                                            vol_clamped(l, p + vec3(0, 0, 1)) - vol_clamped(l, p - vec3(0, 0, 1)));
+                        }
                         const vec3 gw = transpose(mat3(u_index_from_world[l])) * gi;
                         const float gn = length(gw);
                         if (grad_op) a *= gradient_factor(l, gn * u_grad_scale[l]);

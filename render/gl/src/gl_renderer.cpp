@@ -37,12 +37,36 @@ std::string raycast_fragment_source(int layers) {
     return src;
 }
 
+// IEEE half of n / 2 for |n| <= 8190 (round to nearest even): the gradient texture's values.
+uint16_t half_of_half_int(int n) {
+    if (n == 0) return 0;
+    const uint16_t sign = n < 0 ? 0x8000 : 0;
+    unsigned m = unsigned(n < 0 ? -n : n);  // value = m * 2^-1
+    int e = -1;
+    while (m >= 2048) {  // keep 11 significant bits, rounding to nearest even
+        const unsigned rem = m & 1u;
+        m >>= 1;
+        if (rem && (m & 1u)) ++m;
+        ++e;
+    }
+    while (m < 1024) {
+        m <<= 1;
+        --e;
+    }
+    if (m >= 2048) {
+        m >>= 1;
+        ++e;
+    }
+    // value = m * 2^e with 1024 <= m < 2048: exponent field e + 10 + 15.
+    return uint16_t(sign | uint16_t((e + 25) << 10) | uint16_t(m & 0x3ffu));
+}
+
 struct Layer {
     VolumeGeometry geom;
     double lo = 0, hi = 1;  // robust range: quantised 0..4095 spans it
     std::array<int, 3> nb{};
     std::vector<uint16_t> brick_min, brick_max;
-    Texture volume, bricks;
+    Texture volume, bricks, gradient;
     TransferFunction tf;
     BakedTransferFunction baked;
     LayerSettings settings;
@@ -141,6 +165,34 @@ public:
         glTexParameteri(GL_TEXTURE_3D, GL_TEXTURE_MAG_FILTER, GL_LINEAR);
         for (GLenum w : {GL_TEXTURE_WRAP_S, GL_TEXTURE_WRAP_T, GL_TEXTURE_WRAP_R})
             glTexParameteri(GL_TEXTURE_3D, w, GL_CLAMP_TO_EDGE);
+        // Per-voxel central differences (clamped at the border, as the CPU's sample_clamped),
+        // as half floats: the differences are multiples of 0.5 below 2048, so they are exact
+        // up to 1024 and within 0.5 above.
+        {
+            std::vector<uint16_t> g(q.size() * 4);
+            const size_t sy = size_t(d[0]), sz = sy * size_t(d[1]);
+            for (int k = 0; k < d[2]; ++k)
+                for (int j = 0; j < d[1]; ++j)
+                    for (int i = 0; i < d[0]; ++i) {
+                        const size_t c = v.geom.linear(i, j, k);
+                        const int dx = int(q[c + (i + 1 < d[0] ? 1 : 0)]) - int(q[c - (i > 0 ? 1 : 0)]);
+                        const int dy = int(q[c + (j + 1 < d[1] ? sy : 0)]) - int(q[c - (j > 0 ? sy : 0)]);
+                        const int dz = int(q[c + (k + 1 < d[2] ? sz : 0)]) - int(q[c - (k > 0 ? sz : 0)]);
+                        uint16_t* o = g.data() + 4 * c;
+                        o[0] = half_of_half_int(dx);
+                        o[1] = half_of_half_int(dy);
+                        o[2] = half_of_half_int(dz);
+                        o[3] = 0;
+                    }
+            L->gradient.reset(gen_texture());
+            glBindTexture(GL_TEXTURE_3D, L->gradient.get());
+            glTexStorage3D(GL_TEXTURE_3D, 1, GL_RGBA16F, d[0], d[1], d[2]);
+            glTexSubImage3D(GL_TEXTURE_3D, 0, 0, 0, 0, d[0], d[1], d[2], GL_RGBA, GL_HALF_FLOAT, g.data());
+            glTexParameteri(GL_TEXTURE_3D, GL_TEXTURE_MIN_FILTER, GL_LINEAR);
+            glTexParameteri(GL_TEXTURE_3D, GL_TEXTURE_MAG_FILTER, GL_LINEAR);
+            for (GLenum w : {GL_TEXTURE_WRAP_S, GL_TEXTURE_WRAP_T, GL_TEXTURE_WRAP_R})
+                glTexParameteri(GL_TEXTURE_3D, w, GL_CLAMP_TO_EDGE);
+        }
         L->bricks.reset(gen_texture());
         glBindTexture(GL_TEXTURE_3D, L->bricks.get());
         glTexStorage3D(GL_TEXTURE_3D, 1, GL_R8UI, L->nb[0], L->nb[1], L->nb[2]);
@@ -282,6 +334,8 @@ public:
                 glBindTexture(GL_TEXTURE_3D, L.volume.get());
                 glActiveTexture(GL_TEXTURE5 + GLenum(l));
                 glBindTexture(GL_TEXTURE_3D, L.bricks.get());
+                glActiveTexture(GL_TEXTURE12 + GLenum(l));
+                glBindTexture(GL_TEXTURE_3D, L.gradient.get());
             }
             const Eigen::Matrix3f Rwc = Tw.topLeftCorner<3, 3>().cast<float>();
             const Eigen::Vector3f cam = Tw.topRightCorner<3, 1>().cast<float>();
