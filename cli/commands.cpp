@@ -28,6 +28,7 @@ void add_commands(CLI::App& app) {
     add_landscape(app);
     add_skullstrip(app);
     add_phantom(app);
+    add_coregister(app);
     add_sim_tracker(app);
     add_track(app);
     add_bench(app);

@@ -8,6 +8,7 @@ PACKAGES=(
   libnlopt-cxx-dev libnlopt-dev libtbb-dev zlib1g-dev
   nlohmann-json3-dev libcli11-dev libspdlog-dev
   libgtest-dev libgmock-dev libbenchmark-dev
+  elastix time
   clang
   libgphoto2-dev libraw-dev libv4l-dev libudev-dev
   libegl-dev libepoxy-dev libegl-mesa0 libgl1-mesa-dri

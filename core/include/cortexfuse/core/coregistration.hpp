@@ -1,0 +1,127 @@
+#pragma once
+// Rigid co-registration of another modality (CT, an fMRI/EPI-space map) to the T1, through
+// ITK's v4 registration framework (method, docs/planning.md).
+//
+// Convention (ITK's): the transform maps points of the FIXED image's world (LPS mm) to the
+// MOVING image's world: p_moving = T_moving_from_fixed * p_fixed. Resampling the moving
+// volume onto the fixed grid pulls each fixed voxel's value from T * p. Transform files are
+// ITK transform files (Euler3DTransform_double_3_3 in .tfm text or .h5 HDF5) and open in
+// 3D Slicer as they are (Slicer converts ITK's LPS "from parent" resampling transform itself).
+#include <Eigen/Geometry>
+#include <filesystem>
+#include <string>
+#include <vector>
+
+#include "cortexfuse/core/progress.hpp"
+#include "cortexfuse/core/volume.hpp"
+
+namespace cf {
+
+struct CoregParams {
+    /// Mattes: ITK's Mattes MI (Parzen-windowed, sampled); Nmi: ITK's joint-histogram MI
+    /// (the v4 framework has no NMI metric; its joint histogram is the same statistic's
+    /// ingredient, and the final NMI = (H(F)+H(M))/H(F,M) is reported beside it).
+    enum class Metric { Mattes, Nmi } metric = Metric::Mattes;
+    int bins = 32;                                 // [8, 256]
+    std::vector<int> shrink{4, 2, 1};              // per level, [1, 16]
+    std::vector<double> smooth_mm{2.0, 1.0, 0.0};  // Gaussian sigma per level, mm [0, 20]
+    std::vector<int> iterations{200, 100, 50};     // per level (last value repeats) [1, 10000]
+    double sampling = 0.05;                        // fraction of fixed voxels the metric samples (0, 1]
+    double max_step = 2.0;                         // first optimiser step (mm-equivalent) (0, 50]
+    double min_step = 0.01;                        // convergence step (0, max_step)
+    double relaxation = 0.5;                       // step shrink on a direction change (0, 1)
+    uint32_t seed = 1;                             // metric sampling (deterministic)
+    /// Initial alignment: Centroids = foreground centroids made to coincide (robust to CT's
+    /// -1000 HU air where image moments are not); Geometry = grid centres; Identity.
+    enum class Init { Centroids, Geometry, Identity } init = Init::Centroids;
+    /// Sample the metric only on the fixed image's foreground (head, not air).
+    bool fixed_foreground_mask = true;
+    /// Quality gates (an error, not a silent bad result): at least this fraction of the
+    /// fixed foreground must land inside the moving volume's field of view [0, 1], and the
+    /// final NMI must exceed min_nmi (1 = independent images) [1, 2].
+    double min_overlap = 0.5;
+    double min_nmi = 1.02;
+
+    /// Throws InputError("coregister " + field, ...) when a value is out of range.
+    void validate() const;
+};
+
+struct CoregLevelInfo {
+    int iterations = 0;
+    double metric = 0, seconds = 0;
+    std::string stop;
+};
+
+struct CoregResult {
+    Eigen::Matrix4d T_moving_from_fixed = Eigen::Matrix4d::Identity();  // world LPS mm
+    Eigen::Vector3d center_world_mm = Eigen::Vector3d::Zero();           // rotation centre (fixed world)
+    Eigen::Matrix4d T_initial = Eigen::Matrix4d::Identity();
+    double metric = 0;       // ITK's final value (negative MI)
+    double nmi = 0;          // (H(F)+H(M))/H(F,M) over the fixed foreground, after registration
+    double overlap = 0;      // fraction of the fixed foreground inside the moving field of view
+    double seconds = 0;
+    std::vector<CoregLevelInfo> levels;
+};
+
+/// Registers `moving` to `fixed` rigidly. Throws InputError on bad input and when the
+/// result fails the quality gates (no overlap: other anatomy or field of view; NMI near 1:
+/// no shared structure, e.g. another patient's scan or an empty volume). Reports progress
+/// ("coregister", level by level), honours cancellation (cf::Cancelled).
+CoregResult coregister(const Volume& fixed, const Volume& moving, const CoregParams& params = {},
+                       const Progress& progress = {});
+
+/// Moving volume resampled onto `grid` through T_moving_from_fixed (linear, or nearest for
+/// label maps); `outside` beyond the moving field of view.
+Volume resample_rigid(const Volume& moving, const Eigen::Matrix4d& T_moving_from_fixed, const VolumeGeometry& grid,
+                      bool nearest = false, float outside = 0.f);
+
+/// ITK transform files (.tfm, .txt text; .h5, .hdf5 HDF5). Writing is atomic.
+void save_transform(const Eigen::Matrix4d& T_moving_from_fixed, const Eigen::Vector3d& center_world_mm,
+                    const std::filesystem::path& path);
+/// Reads an ITK transform file (first linear transform), or an elastix
+/// TransformParameters file with an EulerTransform (for comparisons). Throws InputError.
+Eigen::Matrix4d load_transform(const std::filesystem::path& path);
+
+/// Rigid transform from Euler angles (rad; ITK's Euler3DTransform order, ComputeZYX off),
+/// translation (mm) and rotation centre (mm).
+Eigen::Matrix4d euler_transform(const Eigen::Vector3d& angles_rad, const Eigen::Vector3d& translation_mm,
+                                const Eigen::Vector3d& center_mm);
+
+/// Mean and max distance (mm) between T_a * p and T_b * p over the world centres of the
+/// mask's voxels (the error of a transform against the truth, over the brain).
+struct TransformError {
+    double mean_mm = 0, max_mm = 0;
+    size_t points = 0;
+};
+TransformError transform_error(const Eigen::Matrix4d& T_a, const Eigen::Matrix4d& T_b, const LabelVolume& mask);
+
+/// Foreground of a head scan: voxels above p2 + 0.1 (p98 - p2) (air and, for CT, its -1000 HU
+/// background excluded). Used for the initial centroids, the metric mask and the overlap gate.
+LabelVolume head_foreground(const Volume& v);
+
+/// NMI = (H(A)+H(B))/H(A,B) of `a` and `b` sampled on `a`'s grid through T_b_from_a, over
+/// `mask_a` (on a's grid; null = everywhere), `bins` bins per axis on the robust ranges.
+double nmi_after_transform(const Volume& a, const Volume& b, const Eigen::Matrix4d& T_b_from_a, const LabelVolume* mask_a,
+                           int bins = 64);
+
+}  // namespace cf
+
+namespace cf {
+
+/// A synthetic co-registration case with known truth, from a real T1: the head moved by
+/// T_moving_from_fixed^-1, resampled onto a CT-like grid (anisotropic voxels: in-plane
+/// `inplane_mm`, slices `slice_mm`, covering the moved head) and its intensities remapped
+/// non-monotonically to CT-like values (air -1000, CSF ~10, grey ~40, white ~28, fat
+/// negative), with noise. moving(T p) = remap(fixed(p)).
+struct SyntheticCoregCase {
+    Volume moving;
+    Eigen::Matrix4d T_moving_from_fixed = Eigen::Matrix4d::Identity();
+    Eigen::Vector3d angles_deg = Eigen::Vector3d::Zero(), translation_mm = Eigen::Vector3d::Zero();
+};
+/// Random rotation within +-max_angle_deg per axis and translation within +-max_shift_mm,
+/// about the fixed grid's centre; deterministic in `seed`.
+SyntheticCoregCase make_synthetic_ct_case(const Volume& t1, uint64_t seed, double max_angle_deg = 10,
+                                          double max_shift_mm = 15, double inplane_mm = 0.9, double slice_mm = 2.0,
+                                          double noise_hu = 5.0);
+
+}  // namespace cf

@@ -1,0 +1,173 @@
+// Rigid co-registration: accuracy on a synthetic CT-like case with truth (small grid, so
+// fast), transform files, quality gates, fMRI thresholding.
+#include <gtest/gtest.h>
+
+#include <filesystem>
+#include <fstream>
+#include <random>
+
+#include "cortexfuse/core/coregistration.hpp"
+#include "cortexfuse/core/error.hpp"
+#include "cortexfuse/core/plan.hpp"
+#include "cortexfuse/core/volume.hpp"
+
+namespace fs = std::filesystem;
+using namespace cf;
+
+namespace {
+
+struct Head {
+    Volume t1;
+    LabelVolume brain;
+};
+
+const Head& head3mm() {
+    static const Head h = [] {
+        Head r;
+        const Volume t1 = load_volume(fs::path(CF_DATA_DIR) / "t1_head_mne_ecog.nii.gz");
+        const LabelVolume m = load_mask(fs::path(CF_DATA_DIR) / "brainmask_mne_ecog_binary.nii.gz");
+        const VolumeGeometry g = isotropic_grid(t1.geom, 3.0);
+        r.t1 = resample(t1, g);
+        r.brain = resample_nearest(m, g);
+        return r;
+    }();
+    return h;
+}
+
+CoregParams fast_params() {
+    CoregParams p;
+    p.shrink = {2, 1};
+    p.smooth_mm = {3.0, 0.0};
+    p.iterations = {150, 80};
+    p.sampling = 0.2;
+    return p;
+}
+
+fs::path temp_dir(const char* name) {
+    const fs::path d = fs::temp_directory_path() / (std::string(name) + "_" + std::to_string(::getpid()));
+    fs::create_directories(d);
+    return d;
+}
+
+}  // namespace
+
+TEST(Coregister, RecoversSyntheticCtLikeMisalignment) {
+    const Head& h = head3mm();
+    for (uint64_t seed : {11u, 12u}) {
+        const SyntheticCoregCase c = make_synthetic_ct_case(h.t1, seed, 10, 15, 3.0, 4.0, 5.0);
+        // Mattes MI; ITK's joint-histogram MI (--metric nmi) is not robust on this CT-like
+        // remap (docs/planning.md), so it is not held to this figure.
+        for (auto metric : {CoregParams::Metric::Mattes}) {
+            CoregParams p = fast_params();
+            p.metric = metric;
+            const CoregResult r = coregister(h.t1, c.moving, p);
+            const TransformError before = transform_error(c.T_moving_from_fixed, r.T_initial, h.brain);
+            const TransformError e = transform_error(c.T_moving_from_fixed, r.T_moving_from_fixed, h.brain);
+            // 3 mm voxels here; the 1 mm figure (<= 0.5 mm) comes from bench/coregister_vs_elastix.sh.
+            EXPECT_LT(e.mean_mm, 1.0) << "seed " << seed << " metric " << int(metric) << " initial " << before.mean_mm;
+            EXPECT_GT(before.mean_mm, 3.0);
+            EXPECT_GT(r.nmi, 1.05);
+            EXPECT_GT(r.overlap, 0.9);
+            EXPECT_EQ(r.levels.size(), 2u);
+        }
+    }
+}
+
+TEST(Coregister, TransformFilesRoundTrip) {
+    const fs::path d = temp_dir("cf_tfm");
+    const Eigen::Vector3d c(1, -20, 30);
+    const Eigen::Matrix4d T = euler_transform(Eigen::Vector3d(0.1, -0.05, 0.2), Eigen::Vector3d(5, -3, 7), c);
+    EXPECT_NEAR((T.topLeftCorner<3, 3>().determinant()), 1.0, 1e-12);
+    // The centre is fixed by the rotation part: T c = c + t.
+    EXPECT_LT((T.topLeftCorner<3, 3>() * c + T.topRightCorner<3, 1>() - (c + Eigen::Vector3d(5, -3, 7))).norm(), 1e-9);
+    for (const char* name : {"t.tfm", "t.h5"}) {
+        save_transform(T, c, d / name);
+        const Eigen::Matrix4d R = load_transform(d / name);
+        EXPECT_LT((R - T).norm(), 1e-9) << name;
+        EXPECT_FALSE(fs::exists(d / (std::string("t.part") + fs::path(name).extension().string())));
+    }
+    // The .tfm is ITK's text format that 3D Slicer reads.
+    std::ifstream f(d / "t.tfm");
+    std::string first;
+    std::getline(f, first);
+    EXPECT_EQ(first, "#Insight Transform File V1.0");
+    // elastix's parameter file, same transform.
+    {
+        std::ofstream e(d / "TransformParameters.0.txt");
+        e << "(Transform \"EulerTransform\")\n(NumberOfParameters 6)\n(TransformParameters 0.1 -0.05 0.2 5 -3 7)\n"
+             "(CenterOfRotationPoint 1 -20 30)\n";
+    }
+    EXPECT_LT((load_transform(d / "TransformParameters.0.txt") - T).norm(), 1e-9);
+    EXPECT_THROW(save_transform(T, c, d / "t.xyz"), InputError);
+    EXPECT_THROW(load_transform(d / "missing.tfm"), InputError);
+    {
+        std::ofstream g(d / "garbage.tfm");
+        g << "not a transform\n";
+    }
+    EXPECT_THROW(load_transform(d / "garbage.tfm"), InputError);
+    fs::remove_all(d);
+}
+
+TEST(Coregister, RefusesEmptyAbsurdAndUnrelatedVolumes) {
+    const Head& h = head3mm();
+    CoregParams p = fast_params();
+    // Empty (constant) moving volume.
+    Volume flat = h.t1;
+    std::fill(flat.voxels.begin(), flat.voxels.end(), 7.f);
+    EXPECT_THROW(coregister(h.t1, flat, p), InputError);
+    // Absurd overlap: a 12 mm slab of the head can hold only a small part of it.
+    Volume slab;
+    slab.geom = h.t1.geom;
+    slab.geom.dims[2] = 4;
+    slab.voxels.assign(h.t1.voxels.begin(), h.t1.voxels.begin() + long(slab.geom.voxel_count()));
+    const size_t zoff = size_t(h.t1.geom.dims[0]) * h.t1.geom.dims[1] * size_t(h.t1.geom.dims[2] / 2);
+    std::copy(h.t1.voxels.begin() + long(zoff), h.t1.voxels.begin() + long(zoff + slab.geom.voxel_count()), slab.voxels.begin());
+    slab.geom.origin_mm = h.t1.geom.world_from_index(Eigen::Vector3d(0, 0, h.t1.geom.dims[2] / 2));
+    try {
+        coregister(h.t1, slab, p);
+        ADD_FAILURE() << "a slab was accepted";
+    } catch (const InputError& e) {
+        EXPECT_NE(std::string(e.what()).find("overlap"), std::string::npos) << e.what();
+    }
+    // Unrelated content (noise blobs, "another patient's" nothing in common): the NMI gate.
+    Volume noise = h.t1;
+    std::mt19937 rng(3);
+    std::uniform_real_distribution<float> u(0.f, 100.f);
+    for (auto& v : noise.voxels) v = u(rng);
+    EXPECT_THROW(coregister(h.t1, noise, p), InputError);
+    CoregParams bad = p;
+    bad.shrink = {2, 1, 1};
+    EXPECT_THROW(coregister(h.t1, h.t1, bad), InputError);
+}
+
+TEST(Fmri, ThresholdKeepsClustersAboveSize) {
+    Volume s;
+    s.geom.dims = {30, 30, 30};
+    s.geom.spacing_mm = Eigen::Vector3d(2, 2, 2);
+    s.voxels.assign(s.geom.voxel_count(), 0.f);
+    auto blob = [&](int ci, int cj, int ck, int r, float v) {
+        for (int k = 0; k < 30; ++k)
+            for (int j = 0; j < 30; ++j)
+                for (int i = 0; i < 30; ++i)
+                    if ((i - ci) * (i - ci) + (j - cj) * (j - cj) + (k - ck) * (k - ck) <= r * r) s.voxels[s.geom.linear(i, j, k)] = v;
+    };
+    blob(8, 8, 8, 4, 5.0f);     // big, active
+    blob(22, 22, 22, 1, 6.0f);  // 7 voxels: below the cluster size
+    blob(22, 8, 8, 4, 2.0f);    // big, below threshold
+    blob(8, 22, 22, 3, -5.0f);  // deactivation
+    FmriParams p;
+    p.threshold = 3.1;
+    p.min_cluster_voxels = 10;
+    int n = 0;
+    const Volume t = threshold_activation(s, p, &n);
+    EXPECT_EQ(n, 1);
+    EXPECT_EQ(t.voxels[s.geom.linear(8, 8, 8)], 5.0f);
+    EXPECT_EQ(t.voxels[s.geom.linear(22, 22, 22)], 0.0f);
+    EXPECT_EQ(t.voxels[s.geom.linear(22, 8, 8)], 0.0f);
+    EXPECT_EQ(t.voxels[s.geom.linear(8, 22, 22)], 0.0f);
+    p.two_sided = true;
+    threshold_activation(s, p, &n);
+    EXPECT_EQ(n, 2);
+    p.threshold = -1;
+    EXPECT_THROW(threshold_activation(s, p), InputError);
+}
