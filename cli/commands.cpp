@@ -28,6 +28,9 @@ void add_commands(CLI::App& app) {
     add_landscape(app);
     add_skullstrip(app);
     add_phantom(app);
+    add_calibrate(app);
+    add_camera(app);
+    add_navigate(app);
     add_coregister(app);
     add_sim_tracker(app);
     add_track(app);

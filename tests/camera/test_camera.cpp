@@ -13,7 +13,9 @@
 #include <opencv2/imgproc.hpp>
 
 #include "cortexfuse/core/error.hpp"
+#include "cortexfuse/core/phantom.hpp"
 #include "cortexfuse/core/pose.hpp"
+#include "cortexfuse/core/volume.hpp"
 #include "cortexfuse/drivers/camera.hpp"
 #include "v4l2_convert.hpp"
 
@@ -345,76 +347,87 @@ TEST(Backends, ByName) {
 
 // ------------------------------------------------------------------ simulated camera
 
-class SimCam : public ::testing::Test {
-protected:
-    static void SetUpTestSuite() {
-        SimCameraConfig c;
-        c.volume_path = kVolume.string();
-        c.mask_path = kMask.string();
-        c.seed = 7;
-        c.width = 320;
-        c.height = 240;
-        c.capture_delay_ms = 250;
-        cam_ = make_sim_backend(c)->open("sim:0").release();
+// One test: each ctest process would build the phantom scene (the brain surface) again.
+TEST(SimCamera, PhotosForPosesWithTruthLatencyOrbitAndCancel) {
+    SimCameraConfig c;
+    c.surface = std::make_shared<const PhantomSurface>(build_phantom_surface(load_volume(kVolume), load_mask(kMask)));
+    c.seed = 7;
+    c.width = 320;
+    c.height = 240;
+    c.capture_delay_ms = 250;
+    std::unique_ptr<Camera> owned = make_sim_backend(c)->open("sim:0");
+    SimCamera& cam = dynamic_cast<SimCamera&>(*owned);
+
+    {
+        SCOPED_TRACE("size, truth, latency");
+        const Photo p = cam.capture();
+        EXPECT_EQ(p.bgr.cols, 320);
+        EXPECT_EQ(p.bgr.rows, 240);
+        EXPECT_EQ(p.bgr.type(), CV_8UC3);
+        EXPECT_EQ(p.mime, "image/jpeg");
+        EXPECT_EQ(decode_still(p.bytes, p.name).size(), p.bgr.size());  // the bytes are the JPEG delivered
+        ASSERT_TRUE(p.T_camera_from_world.has_value());
+        ASSERT_TRUE(p.intrinsics.has_value());
+        EXPECT_EQ(p.intrinsics->width, 320);
+        EXPECT_TRUE(p.T_camera_from_world->isApprox(cam.home_pose()));  // the orbit starts at home
+        EXPECT_GE(p.capture_ms, 250.0);  // the configured shutter + transfer delay
+        cv::Scalar mean, sd;
+        cv::meanStdDev(p.bgr, mean, sd);
+        EXPECT_GT(sd[2], 10.0);  // the scene is there: not a flat image
+        EXPECT_EQ(cam.stats().captures, 1u);
     }
-    static void TearDownTestSuite() {
-        delete cam_;
-        cam_ = nullptr;
+    {
+        SCOPED_TRACE("scripted orbit");
+        const Photo b = cam.capture();
+        EXPECT_FALSE(b.T_camera_from_world->isApprox(cam.home_pose()));
     }
-    static SimCamera& cam() { return dynamic_cast<SimCamera&>(*cam_); }
-    static Camera* cam_;
-};
-Camera* SimCam::cam_ = nullptr;
-
-TEST_F(SimCam, PhotoHasTheSensorSizeTruthAndLatency) {
-    cam().set_pose(std::nullopt);
-    const Photo p = cam().capture();
-    EXPECT_EQ(p.bgr.cols, 320);
-    EXPECT_EQ(p.bgr.rows, 240);
-    EXPECT_EQ(p.bgr.type(), CV_8UC3);
-    EXPECT_EQ(p.mime, "image/jpeg");
-    EXPECT_EQ(decode_still(p.bytes, p.name).size(), p.bgr.size());  // the bytes are the JPEG delivered
-    ASSERT_TRUE(p.T_camera_from_world.has_value());
-    ASSERT_TRUE(p.intrinsics.has_value());
-    EXPECT_EQ(p.intrinsics->width, 320);
-    EXPECT_GE(p.capture_ms, 250.0);  // the configured shutter + transfer delay
-    // The scene is there: not a flat image.
-    cv::Scalar mean, sd;
-    cv::meanStdDev(p.bgr, mean, sd);
-    EXPECT_GT(sd[2], 10.0);
-    EXPECT_GE(cam().stats().captures, 1u);
-}
-
-TEST_F(SimCam, PhotoChangesWithPoseAndRepeatsForTheSamePose) {
-    const Pose home = cam().home_pose();
-    cam().set_pose(home);
-    const Photo a = cam().capture();
-    const Photo a2 = cam().capture();
-    EXPECT_EQ(cv::norm(a.bgr, a2.bgr, cv::NORM_L1), 0.0);  // deterministic scene
-    EXPECT_TRUE(a.T_camera_from_world->isApprox(home));
-    // 8 degrees about the craniotomy, as a tracked camera moving round the head would.
-    const Eigen::Vector3d pivot = (home * Eigen::Vector4d(0, 0, 0, 1)).head<3>() + Eigen::Vector3d(0, 0, 300);
-    const Pose moved = apply_params(home, pivot, {0, 8, 0, 0, 0, 0});
-    cam().set_pose(moved);
-    const Photo b = cam().capture();
-    EXPECT_TRUE(b.T_camera_from_world->isApprox(moved));
-    cv::Mat diff;
-    cv::absdiff(a.bgr, b.bgr, diff);
-    EXPECT_GT(cv::mean(diff)[1], 5.0) << "the photo did not change with the pose";
-    cam().set_pose(std::nullopt);
-}
-
-TEST_F(SimCam, ScriptedOrbitMovesAndCancelStops) {
-    cam().set_pose(std::nullopt);
-    const Photo a = cam().capture();
-    const Photo b = cam().capture();
-    EXPECT_FALSE(a.T_camera_from_world->isApprox(*b.T_camera_from_world));
-    CancelToken cancel;
-    cancel.cancel();
-    Progress p;
-    p.cancel = &cancel;
-    EXPECT_THROW(cam().capture(p), Cancelled);
-    EXPECT_THROW(cam().set_pose(Pose::Zero()), InputError);
+    {
+        SCOPED_TRACE("the photo changes with the pose and repeats for the same pose");
+        const Pose home = cam.home_pose();
+        cam.set_pose(home);
+        const Photo a = cam.capture();
+        const Photo a2 = cam.capture();
+        EXPECT_EQ(cv::norm(a.bgr, a2.bgr, cv::NORM_L1), 0.0);  // deterministic scene
+        EXPECT_TRUE(a.T_camera_from_world->isApprox(home));
+        // 8 degrees about a point 300 mm ahead, as a tracked camera moving round the head would.
+        const Pose moved = apply_params(home, Eigen::Vector3d(0, 0, 300), {0, 8, 0, 0, 0, 0});
+        cam.set_pose(moved);
+        const Photo b = cam.capture();
+        EXPECT_TRUE(b.T_camera_from_world->isApprox(moved));
+        cv::Mat diff;
+        cv::absdiff(a.bgr, b.bgr, diff);
+        EXPECT_GT(cv::mean(diff)[1], 5.0) << "the photo did not change with the pose";
+        // Looking away from the head: a clean error, not a blank photo.
+        cam.set_pose(apply_params(home, Eigen::Vector3d(0, 0, 0), {0, 120, 0, 0, 0, 0}));
+        EXPECT_THROW(cam.capture(), CameraError);
+        cam.set_pose(std::nullopt);
+    }
+    {
+        SCOPED_TRACE("a tracked pose source (what the tracker simulator's camera tool feeds)");
+        SimCameraConfig tracked = c;
+        int calls = 0;
+        const Pose target = apply_params(cam.home_pose(), Eigen::Vector3d(0, 0, 300), {3, -4, 0, 2, 0, 0});
+        tracked.pose_source = [&] {
+            ++calls;
+            return target;
+        };
+        tracked.capture_delay_ms = 0;
+        auto second = make_sim_backend(tracked)->open("sim:0");  // shares the surface
+        const Photo t = second->capture();
+        EXPECT_EQ(calls, 1);
+        EXPECT_TRUE(t.T_camera_from_world->isApprox(target));
+        tracked.pose_source = [] { return Pose(Pose::Zero()); };
+        EXPECT_THROW(make_sim_backend(tracked)->open("sim:0")->capture(), CameraError);
+    }
+    {
+        SCOPED_TRACE("cancel and bad pose");
+        CancelToken cancel;
+        cancel.cancel();
+        Progress p;
+        p.cancel = &cancel;
+        EXPECT_THROW(cam.capture(p), Cancelled);
+        EXPECT_THROW(cam.set_pose(Pose::Zero()), InputError);
+    }
 }
 
 TEST(SimCamera, PoseSourceAndBadConfig) {

@@ -25,7 +25,7 @@ void SimCameraConfig::validate() const {
     if (!(orbit_step_deg >= 0 && orbit_step_deg <= 45)) bad("orbit_step_deg", "must be in [0, 45]");
     if (jpeg_quality < 50 || jpeg_quality > 100) bad("jpeg_quality", "must be in [50, 100]");
     if (case_index < 0) bad("case_index", "must be >= 0");
-    if (volume_path.empty() || mask_path.empty()) bad("volume", "a T1 volume and its brain mask are needed");
+    if (!surface && (volume_path.empty() || mask_path.empty())) bad("volume", "a T1 volume and its brain mask are needed");
 }
 
 namespace {
@@ -47,9 +47,13 @@ class SimCameraImpl final : public SimCamera {
 public:
     explicit SimCameraImpl(const SimCameraConfig& c) : cfg_(c) {
         cfg_.validate();
-        const Volume t1 = load_volume(cfg_.volume_path);
-        const LabelVolume mask = load_mask(cfg_.mask_path);
-        surface_ = build_phantom_surface(t1, mask);
+        if (cfg_.surface) {
+            surface_ = cfg_.surface;
+        } else {
+            const Volume t1 = load_volume(cfg_.volume_path);
+            const LabelVolume mask = load_mask(cfg_.mask_path);
+            surface_ = std::make_shared<const PhantomSurface>(build_phantom_surface(t1, mask));
+        }
         params_.seed = cfg_.seed;
         params_.width = cfg_.width;
         params_.height = cfg_.height;
@@ -57,7 +61,7 @@ public:
         params_.dslr_fraction = 0;
         params_.validate();
         // The scene's own framing fixes the camera (focal length) and the orbit's start.
-        const PhantomCase home = generate_phantom_case(surface_, params_, cfg_.case_index);
+        const PhantomCase home = generate_phantom_case(*surface_, params_, cfg_.case_index);
         home_ = home.T_camera_from_world;
         K_ = home.camera;
         pivot_world_.setZero();
@@ -144,7 +148,7 @@ private:
         prm.fixed_T_camera_from_world = T;
         PhantomCase c;
         try {
-            c = generate_phantom_case(surface_, prm, cfg_.case_index);
+            c = generate_phantom_case(*surface_, prm, cfg_.case_index);
         } catch (const InputError& e) {
             ++errors_;
             throw CameraError("sim:0", std::string("nothing to photograph from this pose (") + e.what() + ")");
@@ -161,7 +165,7 @@ private:
     }
 
     SimCameraConfig cfg_;
-    PhantomSurface surface_;
+    std::shared_ptr<const PhantomSurface> surface_;  // shared, read-only
     PhantomParams params_;
     Pose home_ = Pose::Identity();
     Intrinsics K_;

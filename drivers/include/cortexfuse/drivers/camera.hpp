@@ -27,6 +27,7 @@
 #include <opencv2/core.hpp>
 
 #include "cortexfuse/core/camera.hpp"
+#include "cortexfuse/core/phantom.hpp"
 #include "cortexfuse/core/progress.hpp"
 
 namespace cf::camera {
@@ -131,6 +132,9 @@ std::unique_ptr<Backend> make_v4l2_backend();
 struct SimCameraConfig {
     std::string volume_path;  // T1 MRI and its brain mask (the phantom generator's inputs)
     std::string mask_path;
+    /// A brain surface already built from them (shared, read-only): opening then skips the
+    /// few seconds of building it.
+    std::shared_ptr<const PhantomSurface> surface;
     uint64_t seed = 1;        // the scene (craniotomy, vessels, look) comes from the seed
     int case_index = 0;
     int width = 640, height = 480;  // sensor size; the focal length follows the scene's framing
