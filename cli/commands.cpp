@@ -32,6 +32,7 @@ void add_commands(CLI::App& app) {
     add_camera(app);
     add_navigate(app);
     add_coregister(app);
+    add_overlay(app);
     add_sim_tracker(app);
     add_track(app);
     add_bench(app);

@@ -1,0 +1,145 @@
+// cortexfuse overlay: the photo texture-mapped onto the brain surface with a registration
+// result; textured mesh (OBJ+MTL+PNG, GLB) and fused pictures.
+#include <chrono>
+#include <filesystem>
+#include <iostream>
+#include <memory>
+#include <nlohmann/json.hpp>
+#include <opencv2/imgcodecs.hpp>
+
+#include "commands.hpp"
+#include "cortexfuse/core/case.hpp"
+#include "cortexfuse/core/error.hpp"
+#include "cortexfuse/core/overlay.hpp"
+#include "cortexfuse/core/renderer.hpp"
+#include "cortexfuse/core/skull_strip.hpp"
+#include "cortexfuse/core/transfer_function.hpp"
+#include "progress_bar.hpp"
+
+namespace fs = std::filesystem;
+
+namespace cf::cli {
+
+void add_overlay(CLI::App& app) {
+    struct Opts {
+        std::string case_dir, result, out, mesh, tf = "cortex_t1";
+        double opacity = 0.5;
+        int view_width = 800, max_triangles = 200000;
+        std::vector<double> yaws{-35, 35}, pitches{25};
+        std::vector<std::string> cast;
+    };
+    auto o = std::make_shared<Opts>();
+    auto* cmd = app.add_subcommand("overlay", "Texture-map the photo onto the brain surface with a registration result; "
+                                              "textured OBJ/GLB and fused PNGs");
+    cmd->add_option("CASE_DIR", o->case_dir, "case folder (docs/case-format.md)")->required();
+    cmd->add_option("RESULT", o->result, "registration result (RESULT.json with T_camera_from_world)")->required();
+    cmd->add_option("--out", o->out, "output folder")->required();
+    cmd->add_option("--mesh", o->mesh, "brain surface (PLY/VTP/STL/OBJ, LPS mm, e.g. a plan's brain_surface.ply); "
+                                       "otherwise built from the case's volume");
+    cmd->add_option("--max-triangles", o->max_triangles, "triangle budget when the surface is built here")->capture_default_str();
+    cmd->add_option("--opacity", o->opacity, "photo opacity over the volume rendering")->check(CLI::Range(0.0, 1.0))->capture_default_str();
+    cmd->add_option("--view-width", o->view_width, "width of the fused pictures, px")->check(CLI::Range(64, 4000))->capture_default_str();
+    cmd->add_option("--yaw", o->yaws, "free viewpoints: orbit angles about the vertical, degrees")->capture_default_str();
+    cmd->add_option("--pitch", o->pitches, "free viewpoints: orbit angles about the horizontal, degrees")->capture_default_str();
+    cmd->add_option("--tf", o->tf, "transfer function preset or JSON file for the volume")->capture_default_str();
+    cmd->add_option("--cast-back", o->cast, "photo pixel \"u,v\" to cast back onto the surface (repeatable)");
+    cmd->callback([o] {
+        run_guarded("overlay", [o]() -> int {
+            const auto t0 = std::chrono::steady_clock::now();
+            const CaseSpec cs = read_case(o->case_dir);
+            const Pose T = parse_pose(read_json_file(o->result), o->result);
+            std::vector<Eigen::Vector2d> cast_px;
+            for (const auto& s : o->cast) {
+                double u, v;
+                char comma;
+                std::istringstream in(s);
+                if (!(in >> u >> comma >> v) || comma != ',') throw InputError("--cast-back " + s, "expected \"u,v\"");
+                cast_px.emplace_back(u, v);
+            }
+            const cv::Mat photo = load_photo(cs.photo_path);
+            Intrinsics K = cs.camera;
+            if (photo.cols != K.width || photo.rows != K.height) K = K.resized(photo.cols, photo.rows);
+            const Volume vol = load_volume(cs.volume_path);
+            ProgressBar bar("overlay");
+            LabelVolume mask;
+            if (cs.brain_mask_path) {
+                mask = load_mask(*cs.brain_mask_path);
+                if (!mask.geom.same_grid(vol.geom)) throw InputError(cs.brain_mask_path->string(), "not on the volume's grid");
+            } else {
+                mask = skull_strip(vol, {}, &bar.progress());
+            }
+            SurfaceMesh mesh;
+            if (!o->mesh.empty()) {
+                mesh = load_mesh(o->mesh);
+            } else {
+                SurfaceParams sp;
+                sp.max_triangles = o->max_triangles;
+                mesh = build_brain_surface(vol, mask, sp, bar.progress());
+            }
+            const cv::Mat alpha = cs.roi ? roi_mask(*cs.roi, photo.cols, photo.rows) : cv::Mat();
+            const TextureMapping tm = map_texture(mesh, K, T, alpha);
+            const cv::Mat tex = texture_rgba(photo, alpha);
+            fs::create_directories(o->out);
+            const fs::path out(o->out);
+            write_textured_obj(mesh, tm, tex, out / "textured_surface.obj");
+            write_textured_glb(mesh, tm, tex, out / "textured_surface.glb");
+
+            // Fused pictures: from the camera's pose and orbiting about the exposed cortex.
+            TransferFunction tf = fs::exists(o->tf) ? load_transfer_function(o->tf) : preset_transfer_function(o->tf);
+            auto renderer = make_cpu_renderer(vol, tf, &mask);
+            const double s = std::min(1.0, double(o->view_width) / K.width);
+            const Intrinsics Kv = K.scaled(s);
+            Eigen::Vector3d pivot = Eigen::Vector3d::Zero();
+            size_t np = 0;
+            for (size_t i = 0; i < mesh.vertices.size(); ++i)
+                if (tm.in_roi[i]) pivot += mesh.vertices[i].cast<double>(), ++np;
+            if (np == 0)
+                throw InputError("roi", "no visible surface inside the ROI with this pose (wrong result or ROI?)");
+            pivot /= double(np);
+            nlohmann::json views = nlohmann::json::array();
+            auto view = [&](const std::string& name, const Pose& Tv) {
+                const cv::Mat img = render_fused(*renderer, mesh, tm, tex, Kv, Tv, o->opacity);
+                const fs::path f = out / (name + ".png");
+                if (!cv::imwrite(f.string(), img)) throw InputError(f.string(), "cannot write");
+                views.push_back({{"file", f.filename().string()}, {"T_camera_from_world", pose_to_json(Tv)}});
+            };
+            view("fused_camera", T);
+            for (double y : o->yaws) view("fused_yaw" + std::to_string(int(std::lround(y))), orbit_pose(T, pivot, y, 0));
+            for (double p : o->pitches) view("fused_pitch" + std::to_string(int(std::lround(p))), orbit_pose(T, pivot, 0, p));
+
+            nlohmann::json casts = nlohmann::json::array();
+            for (const auto& px : cast_px) {
+                const auto h = cast_back(mesh, K, T, px);
+                if (h)
+                    casts.push_back({{"pixel", {px.x(), px.y()}},
+                                     {"p_world_mm", {h->p_world_mm.x(), h->p_world_mm.y(), h->p_world_mm.z()}},
+                                     {"depth_mm", h->depth_mm}});
+                else
+                    casts.push_back({{"pixel", {px.x(), px.y()}}, {"p_world_mm", nullptr}});
+            }
+            const nlohmann::json j = {{"format", "cortexfuse-overlay/1"},
+                                      {"case", o->case_dir},
+                                      {"result", o->result},
+                                      {"mesh", o->mesh.empty() ? "built from the case volume" : o->mesh},
+                                      {"vertices", mesh.vertices.size()},
+                                      {"triangles", mesh.triangles.size()},
+                                      {"visible_vertices", tm.visible_count},
+                                      {"roi_vertices", tm.roi_count},
+                                      {"back_facing", tm.back_facing},
+                                      {"occluded", tm.occluded},
+                                      {"outside_image", tm.outside_image},
+                                      {"opacity", o->opacity},
+                                      {"textured_obj", "textured_surface.obj"},
+                                      {"textured_glb", "textured_surface.glb"},
+                                      {"views", views},
+                                      {"cast_back", casts},
+                                      {"seconds", std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count()}};
+            write_file_atomic(out / "overlay.json", j.dump(1));
+            std::cout << "overlay: " << tm.visible_count << " visible vertices, " << tm.roi_count << " in the ROI -> " << o->out
+                      << "\n";
+            return 0;
+        });
+    });
+}
+
+}  // namespace cf::cli
