@@ -32,6 +32,8 @@ void add_skullstrip(CLI::App& app) {
     cmd->add_option("--bet-fraction", p.bet_fraction, "surface model's fractional threshold (BET's f)")->capture_default_str();
     cmd->add_flag("--no-surface-model{false}", p.surface_model, "thresholds and morphology alone, no BET surface");
     cmd->add_option("--brain-csf-margin-mm", p.brain_csf_margin_mm, "target brain: CSF layer kept over the cortex")->capture_default_str();
+    cmd->add_option("--support-above-mm", p.support_above_mm, "surface interior is brain above its centre + this (>= 100: never)")->capture_default_str();
+    cmd->add_option("--open-mm", p.open_mm, "final opening radius (removes thin leaks)")->capture_default_str();
     cmd->add_option("--envelope-margin-mm", p.envelope_margin_mm, "reach of tissue beyond the surface model")->capture_default_str();
     cmd->add_option("--erode-mm", p.erode_mm, "erosion radius separating brain from scalp")->capture_default_str();
     cmd->add_option("--close-mm", p.close_mm, "closing radius (sulci, envelope)")->capture_default_str();

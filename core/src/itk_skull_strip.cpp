@@ -261,13 +261,15 @@ void check_config(const SkullStripConfig& c) {
     if (!in(c.reconstruct_mm, 0.0, 30.0)) bad("reconstruct_mm", c.reconstruct_mm, "[0, 30]");
     if (!in(c.bias_sigma_mm, 0.0, 100.0)) bad("bias_sigma_mm", c.bias_sigma_mm, "[0, 100]");
     if (!in(c.envelope_margin_mm, 0.0, 20.0)) bad("envelope_margin_mm", c.envelope_margin_mm, "[0, 20]");
+    if (!in(c.open_mm, 0.0, 20.0)) bad("open_mm", c.open_mm, "[0, 20]");
     if (!in(c.final_dilate_mm, -10.0, 10.0)) bad("final_dilate_mm", c.final_dilate_mm, "[-10, 10]");
     if (!in(c.min_brain_ml, 0.0, 1e5) || !in(c.max_brain_ml, c.min_brain_ml, 1e6))
         bad("max_brain_ml", c.max_brain_ml, "[min_brain_ml, 1e6]");
 }
 
 
-void skull_strip_mask(const Grid& grid, const float* voxels, const uint8_t* envelope, const SkullStripConfig& cfg,
+void skull_strip_mask(const Grid& grid, const float* voxels, const uint8_t* envelope, const uint8_t* support,
+                      const SkullStripConfig& cfg,
                       const StepFn& step, std::vector<uint8_t>& mask, SkullStripReport& rep) {
     check_config(cfg);
     for (int a = 0; a < 3; ++a)
@@ -449,6 +451,19 @@ void skull_strip_mask(const Grid& grid, const float* voxels, const uint8_t* enve
         seed = tissue(0.45, 0.55);
     }
 
+    // Over the convexity the surface model is reliable where one threshold is not (bias field,
+    // thin dark cortex at the vertex): the `support` voxels (surface interior above its centre)
+    // are brain too.
+    if (support) {
+        uint8_t* sp = seed->GetBufferPointer();
+        for (int k = 0; k < box.dims[2]; ++k)
+            for (int j = 0; j < box.dims[1]; ++j) {
+                const uint8_t* src = support + full.linear(box.lo[0], box.lo[1] + j, box.lo[2] + k);
+                uint8_t* dst = sp + box.linear(0, j, k);
+                for (int i = 0; i < box.dims[0]; ++i) dst[i] |= src[i];
+            }
+    }
+
     // 8. Closing takes in the sulcal CSF and smooths the outer surface: the brain envelope.
     step("closing", 0.52);
     seed = close(seed, box, cfg.close_mm);
@@ -475,6 +490,20 @@ void skull_strip_mask(const Grid& grid, const float* voxels, const uint8_t* enve
     }
 
     if (env) and_into(seed, env);
+
+    // Opening: thin sheets that leaked along the dura or into the temporal muscle are narrower
+    // than 2 * open_mm, the brain is not; keep the central part and grow it back inside the mask.
+    if (cfg.open_mm > 0) {
+        step("opening", 0.8);
+        auto core = morph(seed, box, -cfg.open_mm);
+        core = pick_central(core, box, dist2_mm, 0.5 * radius_mm);
+        if (core) {
+            // + 1.5 voxels: the distance maps count from boundary voxel centres (no net shrink).
+            auto back = morph(core, box, cfg.open_mm + 1.5 * max_sp);
+            and_into(back, seed);
+            seed = back;
+        }
+    }
 
     // 10. Fill enclosed cavities (ventricles, dark lesions).
     step("hole filling", 0.85);

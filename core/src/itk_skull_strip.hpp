@@ -22,6 +22,7 @@ struct SkullStripConfig {
     double close_mm = 8.0;
     double final_dilate_mm = 0.0;
     double envelope_margin_mm = 3.0;
+    double open_mm = 3.0;
     double min_brain_ml = 500.0;
     double max_brain_ml = 2500.0;
 };
@@ -42,9 +43,11 @@ using StepFn = std::function<void(const char* stage, double fraction)>;
 
 /// Binary brain mask (0/1) of a T1 head on `grid` (only dims and spacing are used). When
 /// `envelope` (0/1 on the grid, e.g. the BET surface) is given, brain tissue and CSF are only
-/// taken within cfg.envelope_margin_mm of it.
+/// taken within cfg.envelope_margin_mm of it. `support` (0/1 on the grid, may be null) is taken
+/// as brain before the closing.
 /// Throws cf::InputError when no head or no brain-like region is found.
-void skull_strip_mask(const Grid& grid, const float* voxels, const uint8_t* envelope, const SkullStripConfig& cfg,
+void skull_strip_mask(const Grid& grid, const float* voxels, const uint8_t* envelope, const uint8_t* support,
+                      const SkullStripConfig& cfg,
                       const StepFn& step, std::vector<uint8_t>& mask, SkullStripReport& report);
 
 }  // namespace cf::itkb

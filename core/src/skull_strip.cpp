@@ -53,6 +53,7 @@ LabelVolume skull_strip(const Volume& t1, const SkullStripParams& p, const Progr
     cfg.reconstruct_mm = p.reconstruct_mm;
     cfg.close_mm = p.close_mm;
     cfg.envelope_margin_mm = p.envelope_margin_mm;
+    cfg.open_mm = p.open_mm;
     cfg.final_dilate_mm = p.final_dilate_mm;
     cfg.min_brain_ml = p.min_brain_ml;
     cfg.max_brain_ml = p.max_brain_ml;
@@ -106,13 +107,29 @@ LabelVolume skull_strip(const Volume& t1, const SkullStripParams& p, const Progr
         // A surface that collapsed or swallowed the head bounds nothing: morphology alone then.
         if (envelope_ml < 0.5 * p.min_brain_ml || envelope_ml > 2.0 * p.max_brain_ml) envelope.clear();
     }
+    // Above the surface's centre (the convexity) its interior is brain; below, the skull base
+    // is where BET-like models leak, and the tissue pipeline decides.
+    std::vector<uint8_t> support;
+    if (!envelope.empty()) {
+        support.assign(envelope.size(), 0);
+        const double h_cog = bs.cog_mm[0] * frame.up[0] + bs.cog_mm[1] * frame.up[1] + bs.cog_mm[2] * frame.up[2];
+        for (int k = 0; k < grid.dims[2]; ++k)
+            for (int j = 0; j < grid.dims[1]; ++j)
+                for (int i = 0; i < grid.dims[0]; ++i) {
+                    const size_t li = (size_t(k) * grid.dims[1] + j) * grid.dims[0] + i;
+                    const double h = i * sp[0] * frame.up[0] + j * sp[1] * frame.up[1] + k * sp[2] * frame.up[2];
+                    support[li] = envelope[li] && h > h_cog + p.support_above_mm;
+                }
+        if (p.support_above_mm >= 100.0) support.clear();
+    }
 
     // 2. Tissue classes, thresholds and morphology inside the envelope (itk_skull_strip.cpp).
     const itkb::StepFn step2 = [&](const char* stage, double f) { step(stage, 0.22 + 0.75 * f); };
     LabelVolume work;
     work.geom = v.geom;
     itkb::SkullStripReport rep;
-    itkb::skull_strip_mask(grid, v.voxels.data(), envelope.empty() ? nullptr : envelope.data(), cfg, step2,
+    itkb::skull_strip_mask(grid, v.voxels.data(), envelope.empty() ? nullptr : envelope.data(),
+                           support.empty() ? nullptr : support.data(), cfg, step2,
                            work.voxels, rep);
 
     LabelVolume out = iso_mm > 0 ? resample_nearest(work, t1.geom) : std::move(work);

@@ -22,6 +22,9 @@ struct SkullStripParams {
     bool surface_model = true;
     /// BET's fractional intensity threshold for the surface model (lower: larger envelope). [0.05, 0.95]
     double bet_fraction = 0.5;
+    /// The surface model's interior counts as brain above its centre + this height (the convexity,
+    /// where one threshold misses dark cortex); >= 100: never. [-50, 100]
+    double support_above_mm = 0.0;
     /// Tissue and CSF are only taken within this distance of the BET surface. [0, 20]
     double envelope_margin_mm = 3.0;
     /// Background level = p2 + background_frac * (p98 - p2) of all voxels (as FSL BET). [0.01, 0.5]
@@ -50,7 +53,10 @@ struct SkullStripParams {
     double csf_split = -0.6;
     /// Target intracranial only: how far beyond the brain envelope the CSF growth may reach (up to
     /// the inner table of the skull); also what stops it from leaking through the skull base. [0, 20]
-    double csf_margin_mm = 6.0;
+    double csf_margin_mm = 8.0;
+    /// Opening radius at the end: removes sheets thinner than twice this (leaks along the dura,
+    /// into the temporal muscle); 0 = none. [0, 20]
+    double open_mm = 3.0;
     /// Final dilation (negative: erosion) of the mask. [-10, 10]
     double final_dilate_mm = 0.0;
     /// Plausible mask volume; outside it the input is refused as "not a T1 head". Max in [min, 1e6]
