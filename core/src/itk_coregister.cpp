@@ -17,7 +17,7 @@
 #include <itkMatrixOffsetTransformBase.h>
 #include <itkNearestNeighborInterpolateImageFunction.h>
 #include <itkRegistrationParameterScalesFromPhysicalShift.h>
-#include <itkRegularStepGradientDescentOptimizerv4.h>
+#include <itkGradientDescentOptimizerv4.h>
 #include <itkResampleImageFilter.h>
 #include <itkTransformFileReader.h>
 #include <itkTransformFileWriter.h>
@@ -80,7 +80,7 @@ public:
         p->UnRegister();  // the SmartPointer holds the only reference
         return p;
     }
-    using Optimizer = itk::RegularStepGradientDescentOptimizerv4<double>;
+    using Optimizer = itk::GradientDescentOptimizerv4Template<double>;
     const CoregStepFn* step = nullptr;
     int level = 0, iterations = 1;
     bool stopped = false;
@@ -100,7 +100,11 @@ public:
 template <class MetricT>
 void run(const FImage* fixed, const FImage* moving, const MImage* mask, typename MetricT::Pointer metric,
          const CoregConfig& cfg, const CoregStepFn& step, CoregOutput& out) {
-    using Optimizer = itk::RegularStepGradientDescentOptimizerv4<double>;
+    // Gradient descent with the step estimated from the physical shift it causes (at most
+    // max_step mm per iteration) at every iteration, stopped by a convergence window: the
+    // ANTs-style setup. (ITK's regular-step descent halved its step on every noisy sign
+    // change of the sampled MI gradient and stalled far from the optimum on CT-like data.)
+    using Optimizer = itk::GradientDescentOptimizerv4Template<double>;
     using Method = itk::ImageRegistrationMethodv4<FImage, FImage, Euler>;
     const size_t nlev = cfg.shrink.size();
 
@@ -124,14 +128,14 @@ void run(const FImage* fixed, const FImage* moving, const MImage* mask, typename
     scales->SetMetric(metric);
     auto opt = Optimizer::New();
     opt->SetScalesEstimator(scales);
-    opt->SetLearningRate(cfg.max_step);
-    opt->SetMinimumStepLength(cfg.min_step);
-    opt->SetRelaxationFactor(cfg.relaxation);
-    opt->SetGradientMagnitudeTolerance(1e-8);
-    opt->SetNumberOfIterations(cfg.iterations.empty() ? 100 : cfg.iterations[0]);
-    opt->SetReturnBestParametersAndValue(true);
+    opt->SetLearningRate(1.0);
+    opt->SetMaximumStepSizeInPhysicalUnits(cfg.max_step);
     opt->SetDoEstimateLearningRateOnce(false);
-    opt->SetDoEstimateLearningRateAtEachIteration(false);
+    opt->SetDoEstimateLearningRateAtEachIteration(true);
+    opt->SetMinimumConvergenceValue(cfg.min_step * 1e-4);
+    opt->SetConvergenceWindowSize(10);
+    opt->SetNumberOfIterations(cfg.iterations.empty() ? 100 : itk::SizeValueType(cfg.iterations[0]));
+    opt->SetReturnBestParametersAndValue(true);
 
     auto reg = Method::New();
     reg->SetFixedImage(fixed);
@@ -190,7 +194,7 @@ void run(const FImage* fixed, const FImage* moving, const MImage* mask, typename
         const int it = l < c->cfg->iterations.size() ? c->cfg->iterations[l] : c->cfg->iterations.back();
         c->opt->SetNumberOfIterations(itk::SizeValueType(it));
         // Smaller first steps at finer levels: the coarse level has done the long moves.
-        c->opt->SetLearningRate(c->cfg->max_step / double(1u << std::min<size_t>(l, 8)));
+        c->opt->SetMaximumStepSizeInPhysicalUnits(c->cfg->max_step / double(1u << std::min<size_t>(l, 8)));
         c->obs->level = int(l);
         c->obs->iterations = it;
     });
