@@ -33,6 +33,7 @@ void add_commands(CLI::App& app) {
     add_navigate(app);
     add_coregister(app);
     add_overlay(app);
+    add_plan(app);
     add_sim_tracker(app);
     add_track(app);
     add_bench(app);

@@ -18,6 +18,7 @@ void add_camera(CLI::App& app);  // camera list|capture|files|download
 void add_navigate(CLI::App& app);  // navigate pivot|register-fiducials|brain-shift
 void add_coregister(CLI::App& app);  // coregister, coregister-synth, coregister-error
 void add_overlay(CLI::App& app);
+void add_plan(CLI::App& app);
 void add_sim_tracker(CLI::App& app);
 void add_track(CLI::App& app);
 
