@@ -38,7 +38,7 @@ void add_bench(CLI::App& app) {
     render->add_option("--mask", o->mask, "Render only inside this mask");
     render->add_option("--size", o->size, "Image size WxH")->capture_default_str();
     render->add_option("--tf", o->tf, "Transfer function: a preset name or a JSON file")->capture_default_str();
-    render->add_option("--renderer", o->renderer, "Renderer backend (cpu)")->capture_default_str();
+    render->add_option("--renderer", o->renderer, "Renderer backend: cpu, gl (EGL/OpenGL) or auto")->capture_default_str();
     render->add_option("--frames", o->frames, "Timed frames")->capture_default_str();
     render->add_option("--warmup", o->warmup, "Untimed frames first")->capture_default_str();
     render->add_option("--threads", o->threads, "Worker threads (0: all cores)")->capture_default_str();

@@ -17,6 +17,7 @@
 #include "cortexfuse/core/evaluation.hpp"
 #include "cortexfuse/core/landmarks.hpp"
 #include "cortexfuse/core/registration.hpp"
+#include "cortexfuse/render/renderer_factory.hpp"
 #include "progress_bar.hpp"
 
 namespace fs = std::filesystem;
@@ -31,6 +32,7 @@ struct EvalCmd {
     int trials = 10;
     double max_mm = 10, max_deg = 5;
     bool wide = false, seed_schedule = false, no_prior = false;
+    std::string renderer = "cpu";
     uint64_t seed = 1;
     int limit_cases = 0;
     double success_mm = 3.0;
@@ -130,6 +132,8 @@ void add_evaluate(CLI::App& app) {
     sub->add_option("--params", o->params_file, "Registration parameters (JSON)");
     sub->add_flag("--seed-schedule", o->seed_schedule, "Use the seed's original stage schedule");
     sub->add_flag("--no-prior", o->no_prior, "Turn the landmark prior off");
+    sub->add_option("--renderer", o->renderer, "Ray caster for the similarity: cpu, gl (EGL/OpenGL) or auto")
+        ->capture_default_str();
     sub->add_option("--limit-cases", o->limit_cases, "Use only the first N cases");
     sub->add_option("--json", o->out_json, "Write the summary and every run as JSON");
     sub->add_option("--md", o->out_md, "Write the Markdown table to this file too");
@@ -155,6 +159,7 @@ void add_evaluate(CLI::App& app) {
             RegistrationParams params = o->seed_schedule ? RegistrationParams::seed_schedule() : RegistrationParams::defaults();
             if (!o->params_file.empty()) params = registration_params_from_json(read_json_file(o->params_file), o->params_file);
             if (o->no_prior) params.landmark_prior_weight = 0;
+            params.renderer_factory = renderer_factory(parse_renderer_kind(o->renderer));
 
             Row lm{"landmarks only", {}, {}, {}, {}, {}, {}}, init{"initial (misaligned)", {}, {}, {}, {}, {}, {}},
                 reg{"registered", {}, {}, {}, {}, {}, {}};

@@ -6,6 +6,7 @@
 #include "cortexfuse/core/case.hpp"
 #include "cortexfuse/core/error.hpp"
 #include "cortexfuse/core/registration.hpp"
+#include "cortexfuse/render/renderer_factory.hpp"
 #include "progress_bar.hpp"
 
 namespace fs = std::filesystem;
@@ -16,6 +17,7 @@ namespace {
 struct RegisterOptions {
     std::string case_dir, out, params_file, trace_csv;
     bool seed_schedule = false;
+    std::string renderer = "cpu";
 };
 }  // namespace
 
@@ -26,6 +28,8 @@ void add_register(CLI::App& app) {
     sub->add_option("--out", opt->out, "Result JSON to write")->required();
     sub->add_option("--params", opt->params_file, "Registration parameters (JSON, see docs/registration.md)");
     sub->add_flag("--seed-schedule", opt->seed_schedule, "Use the seed's original stage schedule");
+    sub->add_option("--renderer", opt->renderer, "Ray caster for the similarity: cpu, gl (EGL/OpenGL) or auto")
+        ->capture_default_str();
     sub->add_option("--trace", opt->trace_csv, "Write every evaluation (stage, similarity, cost) as CSV");
     sub->callback([opt] {
         run_guarded("register", [&] {
@@ -34,6 +38,7 @@ void add_register(CLI::App& app) {
             RegistrationParams params = opt->seed_schedule ? RegistrationParams::seed_schedule() : RegistrationParams::defaults();
             if (!opt->params_file.empty())
                 params = registration_params_from_json(read_json_file(opt->params_file), opt->params_file);
+            params.renderer_factory = renderer_factory(parse_renderer_kind(opt->renderer));
             Registration reg(c.volume, c.mask, params);
             const RegistrationResult r = reg.run(c.photo, &bar.progress());
             write_file_atomic(opt->out, result_to_json(r).dump(2) + "\n");

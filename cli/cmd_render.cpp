@@ -11,6 +11,7 @@
 #include "cortexfuse/core/error.hpp"
 #include "cortexfuse/core/pose.hpp"
 #include "cortexfuse/core/renderer.hpp"
+#include "cortexfuse/render/renderer_factory.hpp"
 
 namespace fs = std::filesystem;
 
@@ -19,6 +20,7 @@ namespace cf::cli {
 namespace {
 struct RenderCmd {
     std::string volume, mask, pose_file, camera_file, tf = "skin", out, depth_out, view = "left", size = "375x250";
+    std::string renderer = "cpu";
     double distance_mm = 400, focal_px = 0, sample_mm = 1.0;
     bool grey = false, no_shading = false;
 };
@@ -55,8 +57,11 @@ void add_render(CLI::App& app) {
     sub->add_option("--depth-out", o->depth_out, "Also write the depth of the first opaque hit (16-bit PNG, 0.1 mm units)");
     sub->add_flag("--grey", o->grey, "Write the grey image instead of RGB");
     sub->add_flag("--no-shading", o->no_shading, "Turn Lambert shading off");
+    sub->add_option("--renderer", o->renderer, "Ray caster: cpu, gl (EGL/OpenGL, off-screen) or auto (gl if it works, else cpu)")
+        ->capture_default_str();
     sub->callback([o] {
         run_guarded("render", [&] {
+            const RendererKind kind = parse_renderer_kind(o->renderer);
             const Volume v = load_volume(o->volume);
             LabelVolume mask;
             if (!o->mask.empty()) {
@@ -76,7 +81,7 @@ void add_render(CLI::App& app) {
             }
             const Pose T = !o->pose_file.empty() ? parse_pose(read_json_file(o->pose_file), o->pose_file)
                                                  : standard_view(o->view, v.geom.center_world_mm(), o->distance_mm);
-            auto r = make_cpu_renderer(v, transfer_function_arg(o->tf), o->mask.empty() ? nullptr : &mask);
+            auto r = make_renderer(kind, v, transfer_function_arg(o->tf), o->mask.empty() ? nullptr : &mask);
             RenderOptions ro;
             ro.sample_distance_mm = o->sample_mm;
             ro.shading = !o->no_shading;

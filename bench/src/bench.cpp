@@ -24,6 +24,7 @@
 #include "cortexfuse/core/pose.hpp"
 #include "cortexfuse/core/registration.hpp"
 #include "cortexfuse/core/similarity.hpp"
+#include "cortexfuse/render/renderer_factory.hpp"
 
 namespace fs = std::filesystem;
 using nlohmann::json;
@@ -154,7 +155,7 @@ TransferFunction transfer_function_arg(const std::string& name_or_file) {
     return preset_transfer_function(name_or_file);
 }
 
-std::vector<std::string> renderer_names() { return {"cpu"}; }
+std::vector<std::string> renderer_names() { return {"cpu", "gl", "auto"}; }
 
 void check_renderer_name(const std::string& name) {
     const auto known = renderer_names();
@@ -167,7 +168,8 @@ void check_renderer_name(const std::string& name) {
 std::unique_ptr<Renderer> make_renderer(const std::string& name, const Volume& v, const TransferFunction& tf,
                                         const LabelVolume* mask) {
     check_renderer_name(name);
-    return make_cpu_renderer(v, tf, mask);  // the only one so far
+    // gl: the EGL/OpenGL ray caster (render/gl); auto: gl when a context can be made.
+    return cf::make_renderer(parse_renderer_kind(name), v, tf, mask);
 }
 
 Intrinsics bench_intrinsics(int width, int height) {

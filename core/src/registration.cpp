@@ -295,7 +295,8 @@ Registration::Registration(const Volume& volume, const LabelVolume& brain_mask, 
     const TransferFunction tf = std::filesystem::is_regular_file(params_.transfer_function, ec)
                                     ? load_transfer_function(params_.transfer_function)
                                     : preset_transfer_function(params_.transfer_function);
-    renderer_ = make_cpu_renderer(volume, tf, &brain_mask);
+    renderer_ = params_.renderer_factory ? params_.renderer_factory(volume, tf, &brain_mask)
+                                         : make_cpu_renderer(volume, tf, &brain_mask);
 }
 
 Registration::~Registration() = default;

@@ -3,6 +3,7 @@
 // the current pose, compared with the photo by NMI inside the ROI, and the pose is optimised by
 // the seed's multi-stage Downhill Simplex. Every stage's parameters are data (saved with the
 // result), every stage reports progress, can be cancelled, and is timed.
+#include <functional>
 #include <memory>
 #include <nlohmann/json.hpp>
 #include <opencv2/core.hpp>
@@ -56,6 +57,9 @@ struct RegistrationParams {
     std::vector<StageParams> search_stages;
     int keep_best = 1;  // candidates carried into the final stages
     std::vector<StageParams> final_stages;
+    /// Makes the similarity renderer (not serialised); empty: the CPU ray caster. The CLI sets
+    /// it from --renderer through cf_render_gl's renderer_factory() (core links no GL).
+    std::function<std::unique_ptr<Renderer>(const Volume&, const TransferFunction&, const LabelVolume*)> renderer_factory;
 
     static RegistrationParams defaults();
     /// The seed's original schedule (FWHM 8 -> 2 mm, steps 10 mm / 10 deg, final 3 mm / 3 deg).
