@@ -56,7 +56,7 @@ void add_sim_tracker(CLI::App& app) {
             c.link = o->pty ? cf::sim::TrackerSimConfig::Link::pty : cf::sim::TrackerSimConfig::Link::tcp;
             c.pty_link = o->link;
             if (!o->tcp.empty()) {
-                const auto [host, port] = cf::tracker::parse_host_port(o->tcp, "--tcp");
+                const auto [host, port] = cf::tracker::parse_host_port(o->tcp, "--tcp", true);
                 c.tcp_host = host;
                 c.tcp_port = port;
             }

@@ -2,7 +2,7 @@
 // 60 Hz through a fault campaign of every kind. No crash, no corrupt frame accepted (every pose
 // equals the simulator's measurement for that frame, hence its truth within noise), streaming
 // back within 2 s of every reconnect or power cycle.
-// Duration: CF_HIL_SECONDS (environment), else the build's default (60 s release, 15 s ASan).
+// Duration: CF_HIL_SECONDS (environment), else the build's default (60 s release, 20 s ASan).
 #include <gtest/gtest.h>
 
 #include <algorithm>

@@ -289,7 +289,7 @@ std::vector<std::string> discover_serial_ports(const std::string& root) {
     return out;
 }
 
-std::pair<std::string, std::uint16_t> parse_host_port(const std::string& text, const std::string& what) {
+std::pair<std::string, std::uint16_t> parse_host_port(const std::string& text, const std::string& what, bool allow_port_zero) {
     const auto colon = text.rfind(':');
     if (colon == std::string::npos || colon == 0 || colon + 1 == text.size())
         throw ConfigError(what + " " + text, "expected HOST:PORT");
@@ -297,7 +297,8 @@ std::pair<std::string, std::uint16_t> parse_host_port(const std::string& text, c
     if (!std::all_of(port_text.begin(), port_text.end(), [](char c) { return c >= '0' && c <= '9'; }) || port_text.size() > 5)
         throw ConfigError(what + " " + text, "port must be a number 1..65535");
     const long port = std::stol(port_text);
-    if (port < 1 || port > 65535) throw ConfigError(what + " " + text, "port must be 1..65535");
+    if ((port < 1 && !(allow_port_zero && port == 0)) || port > 65535)
+        throw ConfigError(what + " " + text, allow_port_zero ? "port must be 0..65535 (0: any free port)" : "port must be 1..65535");
     return {text.substr(0, colon), static_cast<std::uint16_t>(port)};
 }
 

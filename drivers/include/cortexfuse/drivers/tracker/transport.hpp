@@ -73,7 +73,8 @@ std::unique_ptr<Transport> make_tcp_transport(std::string host, std::uint16_t po
 /// /dev/ttyUSB* and /dev/ttyACM* not already listed through a by-id link. `root` is for tests.
 std::vector<std::string> discover_serial_ports(const std::string& root = "/dev");
 
-/// "HOST:PORT" -> (host, port); throws ConfigError naming `what`.
-std::pair<std::string, std::uint16_t> parse_host_port(const std::string& text, const std::string& what);
+/// "HOST:PORT" -> (host, port); throws ConfigError naming `what`. Port 0 ("any free port")
+/// only when `allow_port_zero` (a server picking its port).
+std::pair<std::string, std::uint16_t> parse_host_port(const std::string& text, const std::string& what, bool allow_port_zero = false);
 
 }  // namespace cf::tracker
