@@ -19,6 +19,7 @@ namespace cf {
 json read_json_file(const fs::path& path) {
     std::error_code ec;
     if (!fs::exists(path, ec)) throw InputError(path.string(), "no such file");
+    if (fs::is_directory(path, ec)) throw InputError(path.string(), "is a folder, not a JSON file");
     std::ifstream in(path);
     if (!in) throw InputError(path.string(), "cannot open file");
     try {
@@ -197,7 +198,35 @@ void validate_roi(const Roi& roi, const Intrinsics& K, const std::string& file) 
 cv::Mat load_photo(const fs::path& path) {
     std::error_code ec;
     if (!fs::exists(path, ec)) throw InputError(path.string(), "no such file");
+    if (fs::is_directory(path, ec)) throw InputError(path.string(), "is a folder, not an image file");
     if (fs::file_size(path, ec) == 0) throw InputError(path.string(), "empty file, not an image");
+    {
+        std::ifstream in(path, std::ios::binary);
+        if (!in) throw InputError(path.string(), "cannot open file (permissions?)");
+        // libjpeg decodes a truncated JPEG with a grey lower part and only a warning: a JPEG
+        // must end with its EOI marker (FF D9), possibly followed by padding.
+        unsigned char soi[2] = {0, 0};
+        in.read(reinterpret_cast<char*>(soi), 2);
+        if (soi[0] == 0xFF && soi[1] == 0xD8) {
+            const auto size = fs::file_size(path, ec);
+            const std::streamoff tail = std::streamoff(std::min<uintmax_t>(size, 4096));
+            std::string end(size_t(tail), '\0');
+            in.seekg(-tail, std::ios::end);
+            in.read(end.data(), tail);
+            if (end.rfind("\xFF\xD9") == std::string::npos)
+                throw InputError(path.string(), "truncated JPEG (no end-of-image marker)");
+        }
+        // libpng prints its own error lines for a truncated PNG: its IEND chunk must be there.
+        if (soi[0] == 0x89 && soi[1] == 'P') {
+            const auto size = fs::file_size(path, ec);
+            const std::streamoff tail = std::streamoff(std::min<uintmax_t>(size, 64));
+            std::string end(size_t(tail), '\0');
+            in.clear();
+            in.seekg(-tail, std::ios::end);
+            in.read(end.data(), tail);
+            if (end.find("IEND") == std::string::npos) throw InputError(path.string(), "truncated PNG (no IEND chunk)");
+        }
+    }
     cv::Mat img;
     try {
         img = cv::imread(path.string(), cv::IMREAD_COLOR);
@@ -232,17 +261,20 @@ CaseSpec read_case(const fs::path& dir) {
     }
     if (j.contains("landmarks") && !j["landmarks"].is_null()) {
         const fs::path p = resolve(str(j, "landmarks", cf_name));
+        c.landmarks_path = p;
         c.landmarks = parse_landmarks(read_json_file(p), p.string());
         validate_landmarks(c.landmarks, c.camera, p.string());
     }
     if (j.contains("initial_pose") && !j["initial_pose"].is_null()) {
         const fs::path p = resolve(str(j, "initial_pose", cf_name));
+        c.initial_pose_path = p;
         c.initial_pose = parse_pose(read_json_file(p), p.string());
     }
     if (c.landmarks.empty() && !c.initial_pose)
         throw InputError(cf_name, "names neither \"landmarks\" nor \"initial_pose\": nothing to start the registration from");
     if (j.contains("roi") && !j["roi"].is_null()) {
         const fs::path p = resolve(str(j, "roi", cf_name));
+        c.roi_path = p;
         c.roi = parse_roi(read_json_file(p), p.string());
         validate_roi(*c.roi, c.camera, p.string());
     }

@@ -163,6 +163,8 @@ VolumeGeometry isotropic_grid(const VolumeGeometry& g, double spacing_mm) {
 }
 
 IntensityStats intensity_stats(const Volume& v, const LabelVolume* mask) {
+    if (mask && (mask->voxels.size() != v.voxels.size() || mask->geom.dims != v.geom.dims))
+        throw std::invalid_argument("intensity_stats: mask on another grid than the volume");
     std::vector<float> vals;
     vals.reserve(v.voxels.size());
     for (size_t i = 0; i < v.voxels.size(); ++i)

@@ -30,6 +30,8 @@ struct CaseSpec {
     std::filesystem::path dir;
     std::filesystem::path volume_path, photo_path;
     std::optional<std::filesystem::path> brain_mask_path;
+    // The small files case.json named, so later errors can name them too.
+    std::optional<std::filesystem::path> landmarks_path, roi_path, initial_pose_path;
     Intrinsics camera;
     std::vector<Landmark> landmarks;
     std::optional<Roi> roi;
