@@ -314,17 +314,22 @@ BrainShiftReport brain_shift(const std::vector<DigitisedPoint>& earlier, const s
 std::string format_brain_shift_table(const BrainShiftReport& r) {
     std::ostringstream os;
     char line[256];
-    std::snprintf(line, sizeof line, "%-12s %8s %8s %8s %8s\n", "landmark", "dx mm", "dy mm", "dz mm", "|d| mm");
+    // Cells 12 columns wide; "±" is two bytes in UTF-8 but one column: pad to 13 bytes.
+    auto pm = [&](double m, double sd) {
+        std::snprintf(line, sizeof line, "%.2f±%.2f", m, sd);
+        const std::string v(line);
+        return " " + std::string(size_t(std::max(0, 13 - int(v.size()))), ' ') + v;
+    };
+    std::snprintf(line, sizeof line, "%-12s %12s %12s %12s %12s\n", "landmark", "dx mm", "dy mm", "dz mm", "|d| mm");
     os << line;
     for (const auto& row : r.rows) {
-        std::snprintf(line, sizeof line, "%-12s %8.2f %8.2f %8.2f %8.2f\n", row.label.c_str(), row.d_mm.x(), row.d_mm.y(),
+        std::snprintf(line, sizeof line, "%-12s %12.2f %12.2f %12.2f %12.2f\n", row.label.c_str(), row.d_mm.x(), row.d_mm.y(),
                       row.d_mm.z(), row.magnitude_mm);
         os << line;
     }
-    std::snprintf(line, sizeof line, "%-12s %4.2f±%-4.2f %4.2f±%-4.2f %4.2f±%-4.2f %4.2f±%-4.2f\n", "mean ± sd", r.mean_d_mm.x(),
-                  r.sd_d_mm.x(), r.mean_d_mm.y(), r.sd_d_mm.y(), r.mean_d_mm.z(), r.sd_d_mm.z(), r.mean_magnitude_mm,
-                  r.sd_magnitude_mm);
-    os << line;
+    const std::string mx = pm(r.mean_d_mm.x(), r.sd_d_mm.x()), my = pm(r.mean_d_mm.y(), r.sd_d_mm.y()),
+                      mz = pm(r.mean_d_mm.z(), r.sd_d_mm.z()), mm_ = pm(r.mean_magnitude_mm, r.sd_magnitude_mm);
+    os << "mean ± sd   " << mx << my << mz << mm_ << "\n";
     if (!r.missing_later.empty()) {
         os << "not re-digitised:";
         for (const auto& s : r.missing_later) os << " " << s;

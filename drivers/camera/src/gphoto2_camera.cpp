@@ -128,7 +128,8 @@ public:
             if (gp_camera_wait_for_event(cam_, 50, &type, &data, ctx_.get()) < GP_OK) break;
             if (type == GP_EVENT_FILE_ADDED && data) {
                 const auto* fp = static_cast<CameraFilePath*>(data);
-                companions.push_back(join(fp->folder, fp->name));
+                const std::string added = join(fp->folder, fp->name);
+                if (added != join(path.folder, path.name)) companions.push_back(added);  // some announce the shot itself too
             }
             free(data);
             if (type == GP_EVENT_TIMEOUT || type == GP_EVENT_CAPTURE_COMPLETE) break;
