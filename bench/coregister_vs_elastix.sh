@@ -40,7 +40,7 @@ results="${results%,}]"
 python3 - "$results" "$work/cases.json" "$(nproc)" "$(cat /proc/loadavg | cut -d' ' -f1)" <<'PY'
 import json, statistics, sys
 rows = json.loads(sys.argv[1])
-cases = json.loads(sys.argv[2])
+cases = json.load(open(sys.argv[2]))
 summary = {}
 for tool in sorted({r['tool'] for r in rows}):
     rs = [r for r in rows if r['tool'] == tool]
