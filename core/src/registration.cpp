@@ -77,6 +77,7 @@ void RegistrationParams::validate(const std::string& ctx) const {
     if (!(vessel_mask_mad >= 0 && vessel_mask_mad <= 100)) bad("vessel_mask_mad must be 0..100 (0: off)");
     if (!(landmark_prior_weight >= 0) || !(landmark_prior_tolerance_px >= 0)) bad("landmark prior must be >= 0");
     if (!(sample_distance_mm >= 0.1 && sample_distance_mm <= 5)) bad("sample_distance_mm must be 0.1..5");
+    if (!(roi_margin_fraction >= 0 && roi_margin_fraction <= 2)) bad("roi_margin_fraction must be 0..2");
     if (starts.empty()) bad("at least one start");
     if (search_stages.empty() && final_stages.empty()) bad("at least one stage");
     if (keep_best < 1) bad("keep_best must be >= 1");
@@ -125,6 +126,7 @@ json to_json(const RegistrationParams& p) {
     j["landmark_prior_weight"] = p.landmark_prior_weight;
     j["landmark_prior_tolerance_px"] = p.landmark_prior_tolerance_px;
     j["sample_distance_mm"] = p.sample_distance_mm;
+    j["roi_margin_fraction"] = p.roi_margin_fraction;
     j["starts"] = p.starts;
     j["keep_best"] = p.keep_best;
     j["search_stages"] = json::array();
@@ -148,6 +150,7 @@ RegistrationParams registration_params_from_json(const json& j, const std::strin
         p.landmark_prior_weight = j.value("landmark_prior_weight", p.landmark_prior_weight);
         p.landmark_prior_tolerance_px = j.value("landmark_prior_tolerance_px", p.landmark_prior_tolerance_px);
         p.sample_distance_mm = j.value("sample_distance_mm", p.sample_distance_mm);
+        p.roi_margin_fraction = j.value("roi_margin_fraction", p.roi_margin_fraction);
         if (j.contains("starts")) p.starts = j.at("starts").get<std::vector<PoseParams>>();
         p.keep_best = j.value("keep_best", p.keep_best);
         if (j.contains("search_stages")) {
@@ -334,6 +337,22 @@ public:
         cv::Mat small;
         cv::resize(in_.photo_bgr, small, cv::Size(w, h), 0, 0, cv::INTER_AREA);
         cv::Mat roi = in_.roi ? roi_mask(*in_.roi, w, h, L.scale) : cv::Mat();
+        if (!roi.empty()) {
+            // Only ROI pixels count: render and filter just the ROI's bounding box plus a margin
+            // for the blurs (a camera cropped by moving the principal point, so rays are exact).
+            const cv::Rect box = cv::boundingRect(roi);
+            const int margin = int(std::lround(p_.roi_margin_fraction * w));
+            const cv::Rect crop = cv::Rect(box.x - margin, box.y - margin, box.width + 2 * margin, box.height + 2 * margin) &
+                                  cv::Rect(0, 0, w, h);
+            if (crop.width >= 8 && crop.height >= 8) {
+                L.K.cx -= crop.x;
+                L.K.cy -= crop.y;
+                L.K.width = crop.width;
+                L.K.height = crop.height;
+                small = small(crop).clone();
+                roi = roi(crop).clone();
+            }
+        }
         L.photo = photo_channel(small, p_.photo_channel, p_.mask_glare, roi, p_.vessel_mask_mad);
         if (cv::countNonZero(L.photo.valid) < 50)
             throw InputError("photo", "fewer than 50 usable pixels in the ROI at " + std::to_string(w) + " px width (all glare or drapes?)");
