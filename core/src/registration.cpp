@@ -36,11 +36,15 @@ RegistrationParams RegistrationParams::defaults() {
     p.vessel_mask_mad = 3.0;
     p.highpass_fwhm_mm = 12.0;
     p.landmark_prior_weight = 0.01;
-    p.starts = {{0, 0, 0, 0, 0, 0}};
+    // The seed's subspaces: the landmark pose and in-plane shifts and turns about it. Poor runs
+    // end in local optima of lower NMI, and more starts find the peak more often (evaluation
+    // of 2026-11-22: MRE 1.60 -> 1.50 mm, success 88 -> 94 %; docs/registration.md).
+    p.starts = {{0, 0, 0, 0, 0, 0}, {0, 0, 0, 4, 0, 0}, {0, 0, 0, -4, 0, 0}, {0, 0, 0, 0, 4, 0},
+                {0, 0, 0, 0, -4, 0}, {0, 0, 6, 0, 0, 0},  {0, 0, -6, 0, 0, 0}};
     p.search_stages = {
         {"search-fwhm4", 4.0, 2.0, 2.0, 190, 80, 0.1, 0.1},
     };
-    p.keep_best = 1;
+    p.keep_best = 2;
     p.final_stages = {
         {"final-fwhm2", 2.0, 1.0, 1.0, 375, 80, 0.05, 0.05},
     };
