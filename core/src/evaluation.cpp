@@ -1,6 +1,9 @@
 #include "cortexfuse/core/evaluation.hpp"
 
 #include <cmath>
+#include <functional>
+
+#include "cortexfuse/core/rasterizer.hpp"
 
 namespace cf {
 
@@ -22,7 +25,11 @@ double surface_depth_at(Renderer& surface, const Intrinsics& K, const Pose& T, c
     return img.coverage[0] ? double(img.depth_mm[0]) : 0.0;
 }
 
-PoseErrors pose_errors(const Truth& truth, const Intrinsics& K, const Pose& Tr, Renderer& surface, double sample_mm) {
+namespace {
+/// The errors with `depth_at(pixel)` giving the camera-frame depth of the surface seen at a
+/// pixel of K with the recovered pose (0 where none).
+PoseErrors pose_errors_with(const Truth& truth, const Intrinsics& K, const Pose& Tr,
+                            const std::function<double(const Eigen::Vector2d&)>& depth_at) {
     PoseErrors e;
     const Pose& Tt = truth.T_camera_from_world;
     double tre = 0, mre = 0, ipe = 0, ipe_mm = 0;
@@ -39,7 +46,7 @@ PoseErrors pose_errors(const Truth& truth, const Intrinsics& K, const Pose& Tr, 
         ipe_mm += dpx * pt.z() / K.fx;
         // MRE: the true pixel cast back with the recovered pose onto the surface.
         const Eigen::Vector3d ray = backproject_ray(K, *ut);
-        const double z = surface_depth_at(surface, K, Tr, *ut, sample_mm);
+        const double z = depth_at(*ut);
         Eigen::Vector3d hit_cam;
         if (z > 0) {
             hit_cam = ray * z;
@@ -61,6 +68,42 @@ PoseErrors pose_errors(const Truth& truth, const Intrinsics& K, const Pose& Tr, 
         e.ipe_mm = ipe_mm / n;
     }
     return e;
+}
+
+}  // namespace
+
+PoseErrors pose_errors(const Truth& truth, const Intrinsics& K, const Pose& Tr, Renderer& surface, double sample_mm) {
+    return pose_errors_with(truth, K, Tr, [&](const Eigen::Vector2d& px) { return surface_depth_at(surface, K, Tr, px, sample_mm); });
+}
+
+PoseErrors pose_errors(const Truth& truth, const Intrinsics& K, const Pose& Tr, const RasterMesh& surface_world) {
+    // Depth buffer of the mesh at the recovered pose, at most ~1000 px wide (bilinear depth
+    // between pixel centres keeps the cast-back sub-pixel).
+    const double scale = std::min(1.0, 1000.0 / K.width);
+    const Intrinsics Ks = scale < 1 ? K.scaled(scale) : K;
+    const RasterBuffers rb = rasterize(surface_world, Ks, Tr);
+    return pose_errors_with(truth, K, Tr, [&](const Eigen::Vector2d& px_full) {
+        const Eigen::Vector2d px = scale < 1 ? Eigen::Vector2d((px_full.x() + 0.5) * Ks.width / K.width - 0.5,
+                                                               (px_full.y() + 0.5) * Ks.height / K.height - 0.5)
+                                             : px_full;
+        const int u0 = int(std::floor(px.x())), v0 = int(std::floor(px.y()));
+        const double fu = px.x() - u0, fv = px.y() - v0;
+        double z = 0, wsum = 0, z_near = 0, w_near = -1;
+        for (int dv = 0; dv <= 1; ++dv)
+            for (int du = 0; du <= 1; ++du) {
+                const int u = u0 + du, v = v0 + dv;
+                if (u < 0 || v < 0 || u >= rb.width || v >= rb.height || !rb.hit(u, v)) continue;
+                const double w = (du ? fu : 1 - fu) * (dv ? fv : 1 - fv);
+                const double d = rb.depth_mm[rb.index(u, v)];
+                z += w * d;
+                wsum += w;
+                if (w > w_near) w_near = w, z_near = d;
+            }
+        if (wsum <= 0) return 0.0;
+        // Across a depth edge (a sulcus wall, the surface's rim) interpolation would invent a
+        // point in between: take the nearest pixel's surface there.
+        return wsum > 0.999 ? z / wsum : z_near;
+    });
 }
 
 PoseParams random_misalignment(std::mt19937_64& rng, double max_mm, double max_deg) {

@@ -36,11 +36,15 @@ RegistrationParams RegistrationParams::defaults() {
     p.vessel_mask_mad = 3.0;
     p.highpass_fwhm_mm = 12.0;
     p.landmark_prior_weight = 0.01;
-    p.starts = {{0, 0, 0, 0, 0, 0}};
+    // The seed's subspaces: the landmark pose and in-plane shifts and turns about it. Poor runs
+    // end in local optima of lower NMI, and more starts find the peak more often (evaluation
+    // of 2026-11-22: MRE 1.60 -> 1.50 mm, success 88 -> 94 %; docs/registration.md).
+    p.starts = {{0, 0, 0, 0, 0, 0}, {0, 0, 0, 4, 0, 0}, {0, 0, 0, -4, 0, 0}, {0, 0, 0, 0, 4, 0},
+                {0, 0, 0, 0, -4, 0}, {0, 0, 6, 0, 0, 0},  {0, 0, -6, 0, 0, 0}};
     p.search_stages = {
         {"search-fwhm4", 4.0, 2.0, 2.0, 190, 80, 0.1, 0.1},
     };
-    p.keep_best = 1;
+    p.keep_best = 2;
     p.final_stages = {
         {"final-fwhm2", 2.0, 1.0, 1.0, 375, 80, 0.05, 0.05},
     };
@@ -77,6 +81,7 @@ void RegistrationParams::validate(const std::string& ctx) const {
     if (!(vessel_mask_mad >= 0 && vessel_mask_mad <= 100)) bad("vessel_mask_mad must be 0..100 (0: off)");
     if (!(landmark_prior_weight >= 0) || !(landmark_prior_tolerance_px >= 0)) bad("landmark prior must be >= 0");
     if (!(sample_distance_mm >= 0.1 && sample_distance_mm <= 5)) bad("sample_distance_mm must be 0.1..5");
+    if (!(roi_margin_fraction >= 0 && roi_margin_fraction <= 2)) bad("roi_margin_fraction must be 0..2");
     if (starts.empty()) bad("at least one start");
     if (search_stages.empty() && final_stages.empty()) bad("at least one stage");
     if (keep_best < 1) bad("keep_best must be >= 1");
@@ -125,6 +130,7 @@ json to_json(const RegistrationParams& p) {
     j["landmark_prior_weight"] = p.landmark_prior_weight;
     j["landmark_prior_tolerance_px"] = p.landmark_prior_tolerance_px;
     j["sample_distance_mm"] = p.sample_distance_mm;
+    j["roi_margin_fraction"] = p.roi_margin_fraction;
     j["starts"] = p.starts;
     j["keep_best"] = p.keep_best;
     j["search_stages"] = json::array();
@@ -148,6 +154,7 @@ RegistrationParams registration_params_from_json(const json& j, const std::strin
         p.landmark_prior_weight = j.value("landmark_prior_weight", p.landmark_prior_weight);
         p.landmark_prior_tolerance_px = j.value("landmark_prior_tolerance_px", p.landmark_prior_tolerance_px);
         p.sample_distance_mm = j.value("sample_distance_mm", p.sample_distance_mm);
+        p.roi_margin_fraction = j.value("roi_margin_fraction", p.roi_margin_fraction);
         if (j.contains("starts")) p.starts = j.at("starts").get<std::vector<PoseParams>>();
         p.keep_best = j.value("keep_best", p.keep_best);
         if (j.contains("search_stages")) {
@@ -335,6 +342,22 @@ public:
         cv::Mat small;
         cv::resize(in_.photo_bgr, small, cv::Size(w, h), 0, 0, cv::INTER_AREA);
         cv::Mat roi = in_.roi ? roi_mask(*in_.roi, w, h, L.scale) : cv::Mat();
+        if (!roi.empty()) {
+            // Only ROI pixels count: render and filter just the ROI's bounding box plus a margin
+            // for the blurs (a camera cropped by moving the principal point, so rays are exact).
+            const cv::Rect box = cv::boundingRect(roi);
+            const int margin = int(std::lround(p_.roi_margin_fraction * w));
+            const cv::Rect crop = cv::Rect(box.x - margin, box.y - margin, box.width + 2 * margin, box.height + 2 * margin) &
+                                  cv::Rect(0, 0, w, h);
+            if (crop.width >= 8 && crop.height >= 8) {
+                L.K.cx -= crop.x;
+                L.K.cy -= crop.y;
+                L.K.width = crop.width;
+                L.K.height = crop.height;
+                small = small(crop).clone();
+                roi = roi(crop).clone();
+            }
+        }
         L.photo = photo_channel(small, p_.photo_channel, p_.mask_glare, roi, p_.vessel_mask_mad);
         if (cv::countNonZero(L.photo.valid) < 50)
             throw InputError("photo", "fewer than 50 usable pixels in the ROI at " + std::to_string(w) + " px width (all glare or drapes?)");

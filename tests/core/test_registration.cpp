@@ -40,6 +40,7 @@ RegistrationParams small_params() {
     RegistrationParams p = RegistrationParams::defaults();
     for (auto& s : p.search_stages) s.max_evaluations = 15;
     for (auto& s : p.final_stages) s.max_evaluations = 15;
+    p.starts.resize(2);  // two subspaces still exercise the multi-start path, at test speed
     return p;
 }
 
@@ -128,4 +129,21 @@ TEST(Evaluation, ErrorsAreZeroAtTheTruthAndGrowWithMisalignment) {
     EXPECT_NEAR(e1.tre_mm, 5.0, 1e-6);
     EXPECT_GT(e1.mre_mm, 3.0);
     EXPECT_GT(e1.ipe_px, e0.ipe_px);
+}
+
+TEST(Evaluation, MreOnTheTrueSurfaceMeshIsZeroAtTheTruth) {
+    const Fixture& f = fixture();
+    ASSERT_TRUE(f.c.spec.truth.has_value());
+    const Truth& t = *f.c.spec.truth;
+    const PhantomSurface surface = build_phantom_surface(f.c.volume, f.c.mask);
+    const PoseErrors e0 = pose_errors(t, f.c.spec.camera, t.T_camera_from_world, surface.mesh);
+    EXPECT_EQ(e0.targets_missed, 0);
+    EXPECT_LT(e0.mre_mm, 0.05);  // the targets lie on this mesh: only depth interpolation remains
+    Eigen::Vector3d c = Eigen::Vector3d::Zero();
+    for (const auto& p : t.targets_world_mm) c += p;
+    c /= double(t.targets_world_mm.size());
+    const Eigen::Vector3d pivot = t.T_camera_from_world.topLeftCorner<3, 3>() * c + t.T_camera_from_world.topRightCorner<3, 1>();
+    const PoseErrors e1 = pose_errors(t, f.c.spec.camera, apply_params(t.T_camera_from_world, pivot, {0, 0, 0, 5, 0, 0}), surface.mesh);
+    EXPECT_NEAR(e1.tre_mm, 5.0, 1e-6);
+    EXPECT_GT(e1.mre_mm, 3.0);
 }

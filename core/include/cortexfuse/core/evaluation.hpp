@@ -7,6 +7,7 @@
 
 #include "cortexfuse/core/case.hpp"
 #include "cortexfuse/core/pose.hpp"
+#include "cortexfuse/core/rasterizer.hpp"
 #include "cortexfuse/core/renderer.hpp"
 
 namespace cf {
@@ -23,6 +24,12 @@ struct PoseErrors {
 /// `surface` renders the brain surface (the registration renderer: first opaque hit = surface).
 PoseErrors pose_errors(const Truth& truth, const Intrinsics& K, const Pose& T_recovered, Renderer& surface,
                        double sample_distance_mm = 0.5);
+
+/// The same against the true brain surface mesh (world LPS mm, the one the targets lie on and
+/// the photo is texture-mapped onto): MRE casts each true pixel back onto this mesh with the
+/// recovered pose, so the true pose scores 0 (the ray-cast surface of `surface` lies a fraction
+/// of a millimetre off the mesh, a floor that is not the registration's error).
+PoseErrors pose_errors(const Truth& truth, const Intrinsics& K, const Pose& T_recovered, const RasterMesh& surface_world);
 
 /// The first opaque hit along the ray of `pixel` (camera-frame depth), or 0 if none.
 double surface_depth_at(Renderer& surface, const Intrinsics& K, const Pose& T, const Eigen::Vector2d& pixel,

@@ -51,6 +51,9 @@ struct RegistrationParams {
     double landmark_prior_weight = 0.01;
     double landmark_prior_tolerance_px = 1.0;
     double sample_distance_mm = 1.0;
+    /// Rendering is cropped to the ROI's bounding box plus this fraction of the working width
+    /// on each side (context for the blurs). Larger than 1 renders the whole frame.
+    double roi_margin_fraction = 0.12;
     /// The seed's subspaces: starting offsets (rx, ry, rz deg, tx, ty, tz mm) about the pivot,
     /// each searched independently through `search_stages`.
     std::vector<PoseParams> starts = {{0, 0, 0, 0, 0, 0}};
