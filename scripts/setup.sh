@@ -13,6 +13,7 @@ PACKAGES=(
   libgphoto2-dev libraw-dev libv4l-dev libudev-dev
   libegl-dev libepoxy-dev libegl-mesa0 libgl1-mesa-dri
   xvfb xauth jq
+  ccache
 )
 missing=()
 for p in "${PACKAGES[@]}"; do
