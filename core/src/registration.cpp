@@ -397,7 +397,13 @@ public:
     }
 
     /// The depth at which blur FWHM in mm is converted to pixels.
-    void set_depth(double depth_mm) { depth_mm_ = depth_mm; }
+    void set_depth(double depth_mm) {
+        // A pose looking away from the brain puts the pivot behind the camera; blur widths
+        // (mm -> px at this depth) would be negative.
+        if (!(depth_mm > 1.0))
+            throw InputError("initial pose", "the brain is behind the camera (pivot depth " + std::to_string(depth_mm) + " mm)");
+        depth_mm_ = depth_mm;
+    }
 
     double similarity(const Pose& T, const StageParams& st) {
         Level& L = level(st.render_width_px);

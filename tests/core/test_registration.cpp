@@ -147,3 +147,14 @@ TEST(Evaluation, MreOnTheTrueSurfaceMeshIsZeroAtTheTruth) {
     EXPECT_NEAR(e1.tre_mm, 5.0, 1e-6);
     EXPECT_GT(e1.mre_mm, 3.0);
 }
+
+TEST(Registration, APoseLookingAwayFromTheBrainIsAClearInputError) {
+    const Fixture& f = fixture();
+    Registration reg(f.c.volume, f.c.mask, small_params());
+    PhotoInput in = f.c.photo;
+    // Turned half a turn about the camera's x axis: the brain is behind the camera.
+    Pose flip = Pose::Identity();
+    flip(1, 1) = flip(2, 2) = -1;
+    in.initial_pose = flip * f.c.spec.truth->T_camera_from_world;
+    EXPECT_THROW(reg.run(in), InputError);
+}
