@@ -123,7 +123,7 @@ std::vector<LandmarkFit> pnp_candidates(const std::vector<Landmark>& lms, const 
     }
     // The mirror of the best pose: tilt the view about the landmarks' centroid, then refine.
     {
-        const Pose& T = out.front().T_camera_from_world;
+        const Pose T = out.front().T_camera_from_world;  // a copy: consider() grows `out`
         Eigen::Vector3d c = Eigen::Vector3d::Zero();
         for (const auto& l : lms) c += l.world_mm;
         c /= double(lms.size());
