@@ -14,6 +14,7 @@ PACKAGES=(
   libegl-dev libepoxy-dev libegl-mesa0 libgl1-mesa-dri
   xvfb xauth jq
   ccache
+  libsqlite3-dev sqlite3 libsodium-dev libzip-dev
 )
 missing=()
 for p in "${PACKAGES[@]}"; do
