@@ -513,6 +513,7 @@ RegistrationResult Registration::run(const PhotoInput& in, const Progress* progr
     for (const auto& s : params_.search_stages) total_budget += s.max_evaluations * int(starts.size());
     for (const auto& s : params_.final_stages) total_budget += s.max_evaluations * params_.keep_best;
     int evals_done = 0;
+    double best_sim_overall = -1e300;
 
     // Similarity of the pose given by params x at a stage (higher is better) and the cost.
     auto evaluate = [&](const PoseParams& x, const StageParams& st, double& similarity) {
@@ -547,6 +548,8 @@ RegistrationResult Registration::run(const PhotoInput& in, const Progress* progr
             }
             ++evals_done;
             res.trace.push_back({evals_done, stage_index, s, c});
+            if (s > best_sim_overall) best_sim_overall = s;
+            if (progress && progress->evaluation) progress->evaluation(evals_done, s, best_sim_overall);
             if (progress && (evals_done % 10 == 0))
                 (*progress)(st.name, std::min(1.0, double(evals_done) / std::max(1, total_budget)));
             return c;

@@ -25,6 +25,10 @@ private:
 struct Progress {
     std::function<void(const std::string& stage, double fraction)> report;
     const CancelToken* cancel = nullptr;  // borrowed, may be null
+    /// Optional, for live plots: called once per similarity evaluation of a registration
+    /// (1-based evaluation count, its similarity, the best similarity so far), on the same
+    /// thread as report(); must be quick.
+    std::function<void(int evaluation, double similarity, double best_similarity)> evaluation;
 
     void operator()(const std::string& stage, double fraction) const {
         if (report) report(stage, fraction);
