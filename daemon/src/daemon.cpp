@@ -1,0 +1,515 @@
+#include "cortexfuse/daemon/daemon.hpp"
+
+#include <cstdlib>
+#include <filesystem>
+#include <mutex>
+#include <regex>
+#include <sstream>
+#include <thread>
+
+#include "cortexfuse/core/case.hpp"
+#include "cortexfuse/core/error.hpp"
+#include "cortexfuse/core/phantom.hpp"
+#include "cortexfuse/core/registration.hpp"
+#include "cortexfuse/core/transfer_function.hpp"
+#include "cortexfuse/daemon/endpoints.hpp"
+#include "cortexfuse/daemon/jobs.hpp"
+#include "cortexfuse/daemon/log.hpp"
+#include "cortexfuse/drivers/camera.hpp"
+#include "cortexfuse/render/renderer_factory.hpp"
+#include "http_server.hpp"
+#include "render_module.hpp"
+#include "tracker_module.hpp"
+
+namespace cf::daemon {
+
+namespace fs = std::filesystem;
+using cf::tracker::steady_ns;
+
+const char* const kVersion = "0.1.0";
+
+std::string resolve_state_dir(const DaemonConfig& c) {
+    if (!c.state_dir.empty()) return c.state_dir;
+    if (const char* s = std::getenv("STATE_DIRECTORY"); s && *s) {
+        std::string first(s);
+        return first.substr(0, first.find(':'));  // systemd may list several
+    }
+    if (const char* h = std::getenv("HOME"); h && *h) return std::string(h) + "/.local/state/cortexfused";
+    return "/tmp/cortexfused";
+}
+
+namespace {
+
+/// The camera module: the configured backend, opened on first use; one capture at a time
+/// (the mutex is the "one thread at a time" of the Camera contract).
+class CameraModule {
+public:
+    explicit CameraModule(const DaemonConfig& c) : cfg_(c) {}
+    nlohmann::json status_json() const {
+        std::lock_guard lk(mu_);
+        nlohmann::json j{{"backend", cfg_.camera_backend}, {"device", cfg_.camera_device}, {"state", state_}};
+        if (!error_.empty()) j["last_error"] = error_;
+        if (cam_) {
+            const auto s = cam_->stats();
+            const auto info = cam_->info();
+            j["model"] = info.model;
+            j["id"] = info.id;
+            j["counters"] = {{"captures", s.captures}, {"frames", s.frames}, {"errors", s.errors}, {"dropped", s.dropped}};
+            j["last_capture_ms"] = s.last_capture_ms;
+        }
+        return j;
+    }
+    cf::camera::Photo capture(const CancelToken* cancel) {
+        std::lock_guard lk(mu_);
+        if (cfg_.camera_backend == "none") throw ApiError(503, "unavailable", "camera: camera.backend is none");
+        try {
+            if (!cam_) {
+                state_ = "opening";
+                cf::camera::SimCameraConfig sc;
+                sc.volume_path = cfg_.t1_path;
+                sc.mask_path = cfg_.brain_mask_path;
+                auto backend = cf::camera::make_backend(cfg_.camera_backend, sc);
+                std::string id = cfg_.camera_device;
+                if (id.empty()) {
+                    const auto list = backend->list();
+                    if (list.empty()) throw cf::camera::CameraError(cfg_.camera_backend, "no camera found");
+                    id = list.front().id;
+                }
+                cam_ = backend->open(id);
+                backend_ = std::move(backend);
+                state_ = "open";
+            }
+            Progress p;
+            p.cancel = cancel;
+            auto photo = cam_->capture(p);
+            error_.clear();
+            return photo;
+        } catch (const cf::camera::CameraError& e) {
+            error_ = e.what();
+            if (!cam_) state_ = "failed";
+            throw ApiError(503, "unavailable", e.what());
+        }
+    }
+
+private:
+    DaemonConfig cfg_;
+    mutable std::mutex mu_;
+    std::string state_ = "closed";
+    std::string error_;
+    std::unique_ptr<cf::camera::Backend> backend_;
+    std::unique_ptr<cf::camera::Camera> cam_;
+};
+
+std::uint64_t parse_id(const Request& r) {
+    const auto it = r.params.find("id");
+    if (it == r.params.end()) throw ApiError(400, "bad_request", "job id missing");
+    const std::string& s = it->second;
+    if (s.empty() || s.size() > 19 || s.find_first_not_of("0123456789") != std::string::npos)
+        throw ApiError(400, "bad_request", "job id '" + s + "' is not a number");
+    return std::stoull(s);
+}
+
+/// A case name relative to the cases folder: segments of [A-Za-z0-9_.-], no "." or "..".
+fs::path case_dir_from_name(const fs::path& cases_root, const nlohmann::json& v, const std::string& field) {
+    if (!v.is_string()) throw ApiError(400, "bad_request", field + ": must be a string (a case name such as phantom/case_0000)");
+    const std::string name = v.get<std::string>();
+    static const std::regex seg("[A-Za-z0-9_][A-Za-z0-9_.-]{0,127}");
+    if (name.empty() || name.size() > 512) throw ApiError(400, "bad_request", field + ": must be 1..512 characters");
+    std::stringstream ss(name);
+    std::string part;
+    fs::path rel;
+    while (std::getline(ss, part, '/')) {
+        if (!std::regex_match(part, seg) || part == "." || part == "..")
+            throw ApiError(400, "bad_request", field + " '" + name + "': each part must be letters, digits, _ . - (no '..', no absolute paths)");
+        rel /= part;
+    }
+    const fs::path dir = cases_root / rel;
+    std::error_code ec;
+    if (!fs::is_regular_file(dir / "case.json", ec)) throw ApiError(404, "not_found", field + " '" + name + "': no such case (no case.json)");
+    return dir;
+}
+
+std::string folder_name(const nlohmann::json& v, const std::string& field) {
+    if (!v.is_string()) throw ApiError(400, "bad_request", field + ": must be a string");
+    const std::string s = v.get<std::string>();
+    static const std::regex re("[A-Za-z0-9_][A-Za-z0-9_-]{0,63}");
+    if (!std::regex_match(s, re)) throw ApiError(400, "bad_request", field + " '" + s + "': 1..64 letters, digits, _ or -");
+    return s;
+}
+
+std::int64_t int_param(const nlohmann::json& p, const char* key, std::int64_t def, std::int64_t lo, std::int64_t hi, const std::string& kind) {
+    if (!p.contains(key)) return def;
+    if (!p[key].is_number_integer()) throw ApiError(400, "bad_request", kind + " " + key + ": must be an integer");
+    const auto v = p[key].get<std::int64_t>();
+    if (v < lo || v > hi)
+        throw ApiError(400, "bad_request", kind + " " + key + ": " + std::to_string(v) + " is out of range " + std::to_string(lo) + ".." + std::to_string(hi));
+    return v;
+}
+
+void reject_unknown(const nlohmann::json& p, const std::vector<std::string>& known, const std::string& kind) {
+    if (!p.is_object()) throw ApiError(400, "bad_request", kind + ": params must be a JSON object");
+    for (auto it = p.begin(); it != p.end(); ++it)
+        if (std::find(known.begin(), known.end(), it.key()) == known.end())
+            throw ApiError(400, "bad_request", kind + " " + it.key() + ": unknown parameter");
+}
+
+}  // namespace
+
+struct Daemon::Impl {
+    DaemonConfig cfg;
+    fs::path state_dir, cases_dir, results_dir;
+    std::int64_t started_ns = 0;
+    std::string started_utc;
+    EndpointRegistry registry;
+    std::unique_ptr<TrackerModule> tracker;
+    std::unique_ptr<RenderModule> render;
+    std::unique_ptr<CameraModule> camera;
+    std::unique_ptr<JobQueue> jobs;
+    std::unique_ptr<HttpServer> http;
+    std::thread monitor;
+    std::mutex monitor_mu;
+    std::condition_variable monitor_cv;
+    bool monitor_stop = false;
+    bool started = false, stopped = false;
+
+    void register_endpoints();
+    void register_job_kinds();
+    nlohmann::json status() const;
+    void monitor_loop();
+};
+
+Daemon::Daemon(DaemonConfig config) : impl_(std::make_unique<Impl>()) { impl_->cfg = std::move(config); }
+
+Daemon::~Daemon() { stop(); }
+
+const DaemonConfig& Daemon::config() const { return impl_->cfg; }
+
+int Daemon::port() const { return impl_->http ? impl_->http->port() : 0; }
+
+void Daemon::start() {
+    Impl& d = *impl_;
+    d.started_ns = steady_ns();
+    d.started_utc = utc_now_iso();
+    d.state_dir = resolve_state_dir(d.cfg);
+    d.cases_dir = d.state_dir / "cases";
+    d.results_dir = d.state_dir / "results";
+    std::error_code ec;
+    for (const auto& p : {d.state_dir, d.cases_dir, d.results_dir}) {
+        fs::create_directories(p, ec);
+        if (ec || !fs::is_directory(p)) throw std::runtime_error("state_dir " + p.string() + ": cannot create the folder" + (ec ? ": " + ec.message() : ""));
+    }
+    // Leftovers of a phantom job interrupted by a crash are temporary folders: remove them.
+    for (const auto& e : fs::directory_iterator(d.cases_dir, ec))
+        if (e.path().filename().string().rfind(".tmp-", 0) == 0) fs::remove_all(e.path(), ec);
+
+    d.tracker = std::make_unique<TrackerModule>(d.cfg);
+    d.render = std::make_unique<RenderModule>(d.cfg);
+    d.camera = std::make_unique<CameraModule>(d.cfg);
+    d.jobs = std::make_unique<JobQueue>(JobQueue::Options{d.cfg.job_progress_hz, d.cfg.jobs_kept});
+    d.http = std::make_unique<HttpServer>(d.cfg, d.registry);
+    d.register_job_kinds();
+    d.register_endpoints();
+
+    HttpServer* http = d.http.get();
+    d.jobs->set_listener([http](const JobInfo& j) {
+        http->publish("jobs", "notify_job", to_json(j), steady_ns());
+        if (j.state != JobInfo::State::queued && j.state != JobInfo::State::running)
+            log(j.state == JobInfo::State::failed ? LogLevel::warning : LogLevel::info, "jobs",
+                "job " + std::to_string(j.id) + " (" + j.kind + ") " + state_name(j.state) + (j.error.empty() ? "" : ": " + j.error),
+                {{"JOB_ID", std::to_string(j.id)}, {"JOB_KIND", j.kind}, {"JOB_STATE", state_name(j.state)}});
+    });
+    d.tracker->set_frame_sink([http](const cf::tracker::TrackerFrame& f) {
+        http->publish("tracker", "notify_tracker_frame", frame_to_json(f), f.publish_steady_ns);
+    });
+
+    d.http->start();  // first: a port in use fails before any thread of ours runs
+    log(LogLevel::info, "http", "listening on " + d.cfg.listen + " (port " + std::to_string(d.http->port()) + ")",
+        {{"PORT", std::to_string(d.http->port())}});
+    d.render->start();
+    d.jobs->start();
+    try {
+        d.tracker->start();
+    } catch (const std::exception& e) {
+        d.http->stop();
+        d.jobs->stop(std::chrono::milliseconds(0));
+        d.render->stop();
+        throw std::runtime_error(std::string("tracker: ") + e.what());
+    }
+    d.monitor = std::thread([&d] { d.monitor_loop(); });
+    d.started = true;
+
+    if (d.cfg.phantom_cases_at_start > 0 && !fs::exists(d.cases_dir / "phantom", ec)) {
+        d.jobs->submit("phantom", {{"n", d.cfg.phantom_cases_at_start}, {"seed", d.cfg.phantom_seed}, {"folder", "phantom"}});
+    }
+    log(LogLevel::info, "daemon", std::string("cortexfused ") + kVersion + " started; state in " + d.state_dir.string());
+}
+
+bool Daemon::stop() {
+    Impl& d = *impl_;
+    if (!d.started || d.stopped) return true;
+    d.stopped = true;
+    log(LogLevel::info, "daemon", "stopping");
+    {
+        std::lock_guard lk(d.monitor_mu);
+        d.monitor_stop = true;
+    }
+    d.monitor_cv.notify_all();
+    if (d.monitor.joinable()) d.monitor.join();
+    d.http->stop();  // no new requests; WebSockets closed
+    const bool jobs_clean = d.jobs->stop(std::chrono::milliseconds(d.cfg.stop_timeout_ms));
+    if (!jobs_clean) log(LogLevel::warning, "jobs", "a job did not end within jobs.stop_timeout_ms; abandoned");
+    d.tracker->stop();
+    d.render->stop();
+    log(LogLevel::info, "daemon", "stopped");
+    return jobs_clean;
+}
+
+bool Daemon::healthy(std::string* why) const {
+    const Impl& d = *impl_;
+    auto fail = [&](const std::string& w) {
+        if (why) *why = w;
+        return false;
+    };
+    if (!d.started || d.stopped) return fail("not running");
+    if (!d.http->healthy()) return fail("http server or push thread stopped");
+    if (!d.jobs->healthy()) return fail("a job worker stopped");
+    if (!d.render->healthy()) return fail("render thread stopped");
+    if (!d.tracker->healthy(d.cfg.tracker_stall_ms)) return fail("tracker stalled or its driver thread stopped");
+    return true;
+}
+
+nlohmann::json Daemon::status_json() const { return impl_->status(); }
+
+std::string Daemon::status_line() const {
+    const Impl& d = *impl_;
+    std::ostringstream s;
+    const auto st = d.tracker->status();
+    if (d.cfg.tracker_enabled) s << "tracker " << cf::tracker::state_name(st.state) << " " << int(st.frame_rate_hz + 0.5) << " Hz";
+    else s << "tracker off";
+    int running = 0, queued = 0;
+    for (const auto& j : d.jobs->list()) {
+        running += j.state == JobInfo::State::running;
+        queued += j.state == JobInfo::State::queued;
+    }
+    s << ", jobs " << running << " running " << queued << " queued, http port " << port();
+    return s.str();
+}
+
+nlohmann::json Daemon::Impl::status() const {
+    std::string why;
+    nlohmann::json j{{"name", "cortexfused"},
+                     {"version", kVersion},
+                     {"started_utc", started_utc},
+                     {"uptime_s", (steady_ns() - started_ns) / 1e9},
+                     {"modules",
+                      {{"tracker", tracker->status_json()},
+                       {"camera", camera->status_json()},
+                       {"renderer", render->status_json()},
+                       {"jobs", jobs->status()},
+                       {"http", http->status_json()},
+                       {"case_store", {{"state", "not connected"}, {"cases_dir", cases_dir.string()}}}}}};
+    return j;
+}
+
+void Daemon::Impl::monitor_loop() {
+    // Status notifications once a second (the watchdog's health check lives in main.cpp).
+    std::unique_lock lk(monitor_mu);
+    while (!monitor_cv.wait_for(lk, std::chrono::seconds(1), [&] { return monitor_stop; })) {
+        lk.unlock();
+        const auto st = status();
+        http->publish("status", "notify_status",
+                      {{"uptime_s", st["uptime_s"]},
+                       {"tracker", {{"state", st["modules"]["tracker"]["state"]}, {"frame_rate_hz", st["modules"]["tracker"].value("frame_rate_hz", 0.0)}}},
+                       {"renderer", {{"state", st["modules"]["renderer"]["state"]}, {"backend", st["modules"]["renderer"]["backend"]}}},
+                       {"jobs", st["modules"]["jobs"]["kinds"]}},
+                      steady_ns());
+        lk.lock();
+    }
+}
+
+void Daemon::Impl::register_job_kinds() {
+    const fs::path cases = cases_dir, results = results_dir;
+    const DaemonConfig c = cfg;
+
+    JobKind phantom;
+    phantom.name = "phantom";
+    phantom.validate = [cases, c](const nlohmann::json& p) {
+        reject_unknown(p, {"n", "seed", "folder"}, "phantom");
+        nlohmann::json out;
+        out["n"] = int_param(p, "n", 1, 1, 20, "phantom");
+        out["seed"] = int_param(p, "seed", c.phantom_seed, 0, 2147483647, "phantom");
+        out["folder"] = folder_name(p.value("folder", nlohmann::json("phantom")), "phantom folder");
+        std::error_code ec;
+        if (fs::exists(cases / out["folder"].get<std::string>(), ec))
+            throw ApiError(409, "conflict", "phantom folder '" + out["folder"].get<std::string>() + "' exists already");
+        return out;
+    };
+    phantom.run = [cases, c](const nlohmann::json& p, JobContext& ctx) {
+        const std::string folder = p["folder"].get<std::string>();
+        const fs::path tmp = cases / (".tmp-" + folder + "-" + std::to_string(ctx.id()));
+        const fs::path dest = cases / folder;
+        PhantomParams pp;
+        pp.seed = std::uint64_t(p["seed"].get<std::int64_t>());
+        pp.dslr_fraction = 0;  // small photos: quick registrations on the cart
+        std::error_code ec;
+        try {
+            const auto dirs = generate_phantoms(tmp, p["n"].get<int>(), c.t1_path, c.brain_mask_path, pp, ctx.progress());
+            ctx.check();
+            fs::rename(tmp, dest, ec);
+            if (ec) throw std::runtime_error("cases folder " + dest.string() + ": " + ec.message());
+        } catch (...) {
+            fs::remove_all(tmp, ec);  // a cancelled or failed generation leaves nothing behind
+            throw;
+        }
+        nlohmann::json names = nlohmann::json::array();
+        for (const auto& e : fs::directory_iterator(dest))
+            if (fs::is_regular_file(e.path() / "case.json")) names.push_back(folder + "/" + e.path().filename().string());
+        std::sort(names.begin(), names.end());
+        return nlohmann::json{{"cases", names}};
+    };
+    jobs->add_kind(phantom);
+
+    JobKind reg;
+    reg.name = "register";
+    reg.validate = [cases](const nlohmann::json& p) {
+        reject_unknown(p, {"case"}, "register");
+        if (!p.contains("case")) throw ApiError(400, "bad_request", "register case: missing (a case name such as phantom/case_0000)");
+        case_dir_from_name(cases, p["case"], "register case");
+        return nlohmann::json{{"case", p["case"]}};
+    };
+    reg.run = [cases, results, c](const nlohmann::json& p, JobContext& ctx) {
+        const fs::path dir = case_dir_from_name(cases, p["case"], "register case");
+        Progress prog = ctx.progress();
+        ctx.report("loading case", 0);
+        LoadedCase lc = load_case(dir, &prog);
+        ctx.check();
+        RegistrationParams rp = RegistrationParams::defaults();
+        std::ostringstream why;
+        rp.renderer_factory = renderer_factory(parse_renderer_kind(c.renderer, "renderer.kind"), &why);
+        Registration engine(lc.volume, lc.mask, rp);
+        prog.evaluation = [&ctx](int e, double s, double best) { ctx.figures({{"evaluation", e}, {"nmi", s}, {"best_nmi", best}}); };
+        const RegistrationResult r = engine.run(lc.photo, &prog);
+        ctx.check();
+        nlohmann::json full = result_to_json(r);
+        full["case"] = p["case"];
+        const fs::path out = results / ("register_" + std::to_string(ctx.id()) + ".json");
+        write_file_atomic(out, full.dump(2));
+        nlohmann::json summary{{"case", p["case"]},
+                               {"similarity", r.similarity},
+                               {"initial_similarity", r.initial_similarity},
+                               {"evaluations", r.evaluations},
+                               {"seconds", r.seconds},
+                               {"renderer", engine.renderer().name()},
+                               {"T_camera_from_world", pose_to_json(r.T_camera_from_world)},
+                               {"result_file", out.filename().string()}};
+        if (lc.spec.truth && !lc.spec.truth->targets_world_mm.empty()) {
+            // Mean 3D displacement of the truth targets between the true and the found pose (camera frame).
+            double sum = 0;
+            const Pose& Tt = lc.spec.truth->T_camera_from_world;
+            for (const auto& t : lc.spec.truth->targets_world_mm) {
+                const Eigen::Vector4d h(t.x(), t.y(), t.z(), 1);
+                sum += ((Tt * h).head<3>() - (r.T_camera_from_world * h).head<3>()).norm();
+            }
+            summary["target_error_mm"] = sum / double(lc.spec.truth->targets_world_mm.size());
+        }
+        return summary;
+    };
+    jobs->add_kind(reg);
+}
+
+void Daemon::Impl::register_endpoints() {
+    Impl* d = this;
+    auto json_ok = [](nlohmann::json j, int status = 200) {
+        Response r;
+        r.status = status;
+        r.json = std::move(j);
+        return r;
+    };
+    registry.add({"GET", "/api/status", "status.get", Access::open, "Version, uptime and every module's status (no login)",
+                  [d, json_ok](const Request&) { return json_ok(d->status()); }});
+    registry.add({"GET", "/api/endpoints", "endpoints.list", Access::open, "This list",
+                  [d, json_ok](const Request&) { return json_ok({{"endpoints", d->registry.list()}}); }});
+    registry.add({"GET", "/api/config", "config.get", Access::admin, "The effective configuration",
+                  [d, json_ok](const Request&) { return json_ok(to_json(d->cfg)); }});
+    registry.add({"GET", "/api/tracker", "tracker.status", Access::read, "Tracker module status and the newest frame",
+                  [d, json_ok](const Request&) { return json_ok({{"status", d->tracker->status_json()}, {"frame", d->tracker->latest_json()}}); }});
+    registry.add({"GET", "/api/tracker/frame", "tracker.frame", Access::read, "The newest tracker frame (404 before the first)",
+                  [d, json_ok](const Request&) {
+                      auto f = d->tracker->latest_json();
+                      if (f.is_null()) throw ApiError(404, "not_found", "tracker: no frame yet (state " + d->tracker->status_json().value("state", std::string("?")) + ")");
+                      return json_ok(f);
+                  }});
+    registry.add({"GET", "/api/camera", "camera.status", Access::read, "Camera module status",
+                  [d, json_ok](const Request&) { return json_ok(d->camera->status_json()); }});
+    registry.add({"POST", "/api/camera/capture", "camera.capture", Access::write, "Take a photo; answers the file as the camera delivered it (JPEG)",
+                  [d](const Request&) {
+                      auto photo = d->camera->capture(nullptr);
+                      Response r = Response::binary(std::string(photo.bytes.begin(), photo.bytes.end()), photo.mime.empty() ? "image/jpeg" : photo.mime);
+                      r.headers["X-Capture-Ms"] = std::to_string(photo.capture_ms);
+                      return r;
+                  }});
+    registry.add({"GET", "/api/jobs", "jobs.list", Access::read, "All jobs (queued, running, the last finished ones)",
+                  [d, json_ok](const Request&) {
+                      nlohmann::json a = nlohmann::json::array();
+                      for (const auto& j : d->jobs->list()) a.push_back(to_json(j));
+                      return json_ok({{"jobs", a}, {"kinds", d->jobs->kinds()}});
+                  }});
+    registry.add({"GET", "/api/jobs/{id}", "jobs.get", Access::read, "One job",
+                  [d, json_ok](const Request& r) {
+                      const auto id = parse_id(r);
+                      auto j = d->jobs->get(id);
+                      if (!j) throw ApiError(404, "not_found", "job " + std::to_string(id) + ": no such job");
+                      return json_ok(to_json(*j));
+                  }});
+    registry.add({"POST", "/api/jobs", "jobs.create", Access::write, "Queue a job: {kind, params}; answers 202 with the job",
+                  [d, json_ok](const Request& r) {
+                      if (!r.body.is_object()) throw ApiError(400, "bad_request", "jobs.create: body must be a JSON object {\"kind\": ..., \"params\": {...}}");
+                      if (!r.body.contains("kind") || !r.body["kind"].is_string()) throw ApiError(400, "bad_request", "jobs.create kind: missing or not a string");
+                      for (auto it = r.body.begin(); it != r.body.end(); ++it)
+                          if (it.key() != "kind" && it.key() != "params") throw ApiError(400, "bad_request", "jobs.create " + it.key() + ": unknown field");
+                      const auto id = d->jobs->submit(r.body["kind"].get<std::string>(), r.body.value("params", nlohmann::json::object()));
+                      Response resp = json_ok(to_json(*d->jobs->get(id)), 202);
+                      resp.headers["Location"] = "/api/jobs/" + std::to_string(id);
+                      return resp;
+                  }});
+    registry.add({"POST", "/api/jobs/{id}/cancel", "jobs.cancel", Access::write, "Cancel a queued or running job",
+                  [d, json_ok](const Request& r) {
+                      const auto id = parse_id(r);
+                      if (!d->jobs->cancel(id)) throw ApiError(404, "not_found", "job " + std::to_string(id) + ": no such job");
+                      return json_ok(to_json(*d->jobs->get(id)));
+                  }});
+    registry.add({"GET", "/api/cases", "cases.list", Access::read, "Case folders under the state folder (until the case store lands)",
+                  [d, json_ok](const Request&) {
+                      nlohmann::json a = nlohmann::json::array();
+                      std::error_code ec;
+                      for (auto it = fs::recursive_directory_iterator(d->cases_dir, ec); !ec && it != fs::recursive_directory_iterator(); it.increment(ec)) {
+                          if (it.depth() > 2) {
+                              it.disable_recursion_pending();
+                              continue;
+                          }
+                          const auto name = it->path().filename().string();
+                          if (!name.empty() && name[0] == '.') {
+                              it.disable_recursion_pending();
+                              continue;
+                          }
+                          if (it->is_regular_file() && name == "case.json")
+                              a.push_back(fs::relative(it->path().parent_path(), d->cases_dir).string());
+                      }
+                      std::sort(a.begin(), a.end());
+                      return json_ok({{"cases", a}});
+                  }});
+    registry.add({"GET", "/api/render/presets", "render.presets", Access::read, "Transfer function presets",
+                  [json_ok](const Request&) { return json_ok({{"presets", preset_names()}}); }});
+    registry.add({"POST", "/api/render", "render", Access::read, "Render a view off-screen; answers image/jpeg or image/png",
+                  [d](const Request& r) {
+                      const nlohmann::json body = r.body.is_null() ? nlohmann::json::object() : r.body;
+                      RenderedImage img = d->render->render(body);
+                      Response resp = Response::binary(std::move(img.bytes), img.mime);
+                      resp.headers["X-Render-Ms"] = std::to_string(img.render_ms);
+                      resp.headers["X-Renderer"] = img.backend;
+                      resp.headers["X-Image-Size"] = std::to_string(img.width) + "x" + std::to_string(img.height);
+                      return resp;
+                  }});
+}
+
+}  // namespace cf::daemon

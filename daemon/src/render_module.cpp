@@ -1,0 +1,275 @@
+#include "render_module.hpp"
+
+#include <algorithm>
+#include <chrono>
+#include <set>
+#include <opencv2/imgcodecs.hpp>
+#include <opencv2/imgproc.hpp>
+#include <optional>
+#include <sstream>
+
+#include "cortexfuse/core/case.hpp"
+#include "cortexfuse/core/error.hpp"
+#include "cortexfuse/core/pose.hpp"
+#include "cortexfuse/core/renderer.hpp"
+#include "cortexfuse/core/transfer_function.hpp"
+#include "cortexfuse/core/volume.hpp"
+#include "cortexfuse/daemon/endpoints.hpp"
+#include "cortexfuse/daemon/log.hpp"
+#include "cortexfuse/render/renderer_factory.hpp"
+
+namespace cf::daemon {
+
+namespace {
+using Clock = std::chrono::steady_clock;
+double ms_since(Clock::time_point t) { return std::chrono::duration<double, std::milli>(Clock::now() - t).count(); }
+
+ApiError bad(const std::string& field, const std::string& problem) { return ApiError(400, "bad_request", "render " + field + ": " + problem); }
+
+int get_int(const nlohmann::json& r, const char* key, int def, int lo, int hi) {
+    if (!r.contains(key)) return def;
+    const auto& v = r[key];
+    if (!v.is_number_integer()) throw bad(key, "must be an integer");
+    const auto x = v.get<long long>();
+    if (x < lo || x > hi) throw bad(key, std::to_string(x) + " is out of range " + std::to_string(lo) + ".." + std::to_string(hi));
+    return int(x);
+}
+double get_num(const nlohmann::json& r, const char* key, double def, double lo, double hi) {
+    if (!r.contains(key)) return def;
+    const auto& v = r[key];
+    if (!v.is_number()) throw bad(key, "must be a number");
+    const double x = v.get<double>();
+    if (!(x >= lo && x <= hi)) throw bad(key, "is out of range " + std::to_string(lo) + ".." + std::to_string(hi));
+    return x;
+}
+std::string get_str(const nlohmann::json& r, const char* key, const std::string& def) {
+    if (!r.contains(key)) return def;
+    if (!r[key].is_string()) throw bad(key, "must be a string");
+    return r[key].get<std::string>();
+}
+}  // namespace
+
+struct RenderModule::Job {
+    int width = 0, height = 0;
+    std::string preset, format, view;
+    double opacity = 1, distance_mm = 450, focal_px = 0, sample_mm = 1;
+    int quality = 85;
+    bool brain_only = true;
+    std::optional<Pose> pose;
+    std::optional<Intrinsics> camera;
+    std::promise<RenderedImage> result;
+};
+
+RenderModule::RenderModule(const DaemonConfig& c) : cfg_(c) {}
+RenderModule::~RenderModule() { stop(); }
+
+void RenderModule::start() {
+    std::lock_guard lk(mu_);
+    if (thread_.joinable()) return;
+    state_ = "loading";
+    thread_ = std::thread([this] { loop(); });
+}
+
+void RenderModule::stop() {
+    {
+        std::lock_guard lk(mu_);
+        stop_ = true;
+    }
+    cv_.notify_all();
+    if (thread_.joinable()) thread_.join();
+}
+
+RenderedImage RenderModule::render(const nlohmann::json& r) {
+    if (!r.is_object()) throw ApiError(400, "bad_request", "render: the request must be a JSON object");
+    static const std::vector<std::string> known = {"width", "height", "preset", "opacity", "brain_only", "view", "distance_mm",
+                                                   "T_camera_from_world", "camera", "focal_px", "format", "quality", "sample_mm"};
+    for (auto it = r.begin(); it != r.end(); ++it)
+        if (std::find(known.begin(), known.end(), it.key()) == known.end()) throw bad(it.key(), "unknown field");
+    auto job = std::make_shared<Job>();
+    job->width = get_int(r, "width", 640, 16, cfg_.render_max_width);
+    job->height = get_int(r, "height", 480, 16, cfg_.render_max_height);
+    job->preset = get_str(r, "preset", "cortex_t1");
+    {
+        const auto names = preset_names();
+        if (std::find(names.begin(), names.end(), job->preset) == names.end()) {
+            std::string list;
+            for (const auto& n : names) list += (list.empty() ? "" : ", ") + n;
+            throw bad("preset", "'" + job->preset + "' is not a preset (" + list + ")");
+        }
+    }
+    job->opacity = get_num(r, "opacity", 1.0, 0.0, 1.0);
+    if (r.contains("brain_only")) {
+        if (!r["brain_only"].is_boolean()) throw bad("brain_only", "must be true or false");
+        job->brain_only = r["brain_only"].get<bool>();
+    } else {
+        job->brain_only = job->preset == "cortex_t1" || job->preset == "surface_white";
+    }
+    job->view = get_str(r, "view", "left");
+    job->distance_mm = get_num(r, "distance_mm", 450, 50, 5000);
+    job->focal_px = get_num(r, "focal_px", 0, 0, 1e6);
+    job->sample_mm = get_num(r, "sample_mm", 1.0, 0.1, 5.0);
+    job->format = get_str(r, "format", "jpeg");
+    if (job->format != "jpeg" && job->format != "png") throw bad("format", "'" + job->format + "' is not jpeg or png");
+    job->quality = get_int(r, "quality", cfg_.jpeg_quality, 10, 100);
+    try {
+        if (r.contains("T_camera_from_world")) job->pose = parse_pose(r, "render request");
+        else if (!std::set<std::string>{"left", "right", "anterior", "posterior", "superior", "inferior"}.count(job->view))
+            throw bad("view", "'" + job->view + "' is not left, right, anterior, posterior, superior or inferior");
+        if (r.contains("camera")) {
+            if (!r["camera"].is_object()) throw bad("camera", "must be an object (intrinsics as in case.json)");
+            Intrinsics K = parse_camera(r["camera"], "render request camera");
+            K.validate("render request camera");
+            if (K.width != job->width || K.height != job->height) K = K.resized(job->width, job->height);
+            job->camera = K;
+        }
+    } catch (const InputError& e) {
+        throw ApiError(400, "bad_request", e.what());
+    }
+    auto fut = job->result.get_future();
+    {
+        std::lock_guard lk(mu_);
+        if (stop_ || state_ == "stopped") throw ApiError(503, "unavailable", "render: the renderer is not running");
+        if (state_ == "failed") throw ApiError(503, "unavailable", "render: the volume could not be loaded: " + error_);
+        queue_.push_back(job);
+    }
+    cv_.notify_all();
+    return fut.get();  // rethrows what the render thread set
+}
+
+void RenderModule::loop() {
+    std::optional<Volume> volume;
+    std::optional<LabelVolume> mask;
+    try {
+        const auto t0 = Clock::now();
+        volume = load_volume(cfg_.t1_path);
+        if (!cfg_.brain_mask_path.empty()) {
+            mask = load_mask(cfg_.brain_mask_path);
+            if (!mask->geom.same_grid(volume->geom)) mask = resample_nearest(*mask, volume->geom);
+        }
+        log(LogLevel::info, "render", "volume loaded in " + std::to_string(int(ms_since(t0))) + " ms");
+        std::lock_guard lk(mu_);
+        state_ = "ready";
+    } catch (const std::exception& e) {
+        log(LogLevel::error, "render", std::string("volume not loaded: ") + e.what());
+        std::lock_guard lk(mu_);
+        state_ = "failed";
+        error_ = e.what();
+    }
+    const RendererKind kind = parse_renderer_kind(cfg_.renderer, "renderer.kind");
+    std::unique_ptr<Renderer> masked, whole;
+    auto make = [&](const LabelVolume* m) {
+        std::ostringstream why;
+        auto r = make_renderer(kind, *volume, preset_transfer_function("cortex_t1"), m, &why);
+        std::string reason = why.str();
+        while (!reason.empty() && (reason.back() == '\n' || reason.back() == '\r')) reason.pop_back();
+        std::lock_guard lk(mu_);
+        backend_ = r->name();
+        if (!reason.empty()) backend_reason_ = reason;
+        else if (backend_reason_.empty()) backend_reason_ = std::string("renderer.kind ") + cfg_.renderer;
+        return r;
+    };
+    if (volume) {
+        // The default view's renderer now, so the status says at once which backend runs and why.
+        try {
+            masked = make(mask ? &*mask : nullptr);
+        } catch (const std::exception& e) {
+            log(LogLevel::error, "render", std::string("no renderer: ") + e.what());
+            std::lock_guard lk(mu_);
+            state_ = "failed";
+            error_ = e.what();
+        }
+    }
+    for (;;) {
+        std::shared_ptr<Job> job;
+        {
+            std::unique_lock lk(mu_);
+            cv_.wait(lk, [&] { return stop_ || !queue_.empty(); });
+            if (stop_) {
+                for (auto& j : queue_) j->result.set_exception(std::make_exception_ptr(ApiError(503, "unavailable", "render: the daemon is stopping")));
+                queue_.clear();
+                break;
+            }
+            job = queue_.front();
+            queue_.pop_front();
+        }
+        try {
+            if (!volume) throw ApiError(503, "unavailable", "render: the volume could not be loaded: " + error_);
+            const bool use_mask = job->brain_only || !mask.has_value();  // 'masked' is the maskless one without a mask
+            auto& r = use_mask ? masked : whole;
+            if (!r) r = make(use_mask && mask ? &*mask : nullptr);
+            TransferFunction tf = preset_transfer_function(job->preset);
+            for (auto& p : tf.opacity) p[1] *= job->opacity;
+            r->set_transfer_function(tf);
+            Intrinsics K;
+            if (job->camera) K = *job->camera;
+            else {
+                K.width = job->width;
+                K.height = job->height;
+                K.fx = K.fy = job->focal_px > 0 ? job->focal_px : 0.5 * job->width * job->distance_mm / 110.0;
+                K.cx = (job->width - 1) * 0.5;
+                K.cy = (job->height - 1) * 0.5;
+            }
+            const Pose T = job->pose ? *job->pose : standard_view(job->view, volume->geom.center_world_mm(), job->distance_mm);
+            RenderOptions ro;
+            ro.sample_distance_mm = job->sample_mm;
+            ro.want_depth = false;
+            RenderImage img;
+            const auto t0 = Clock::now();
+            r->render(K, T, ro, img);
+            RenderedImage out;
+            out.render_ms = ms_since(t0);
+            const auto t1 = Clock::now();
+            cv::Mat bgr;
+            cv::cvtColor(cv::Mat(K.height, K.width, CV_8UC3, img.rgb.data()), bgr, cv::COLOR_RGB2BGR);
+            std::vector<uchar> buf;
+            if (job->format == "png") {
+                cv::imencode(".png", bgr, buf);
+                out.mime = "image/png";
+            } else {
+                cv::imencode(".jpg", bgr, buf, {cv::IMWRITE_JPEG_QUALITY, job->quality});
+                out.mime = "image/jpeg";
+            }
+            out.bytes.assign(buf.begin(), buf.end());
+            out.encode_ms = ms_since(t1);
+            out.width = K.width;
+            out.height = K.height;
+            out.backend = r->name();
+            {
+                std::lock_guard lk(mu_);
+                ++renders_;
+                last_render_ms_ = out.render_ms;
+            }
+            job->result.set_value(std::move(out));
+        } catch (...) {
+            {
+                std::lock_guard lk(mu_);
+                ++failures_;
+            }
+            job->result.set_exception(std::current_exception());
+        }
+    }
+    std::lock_guard lk(mu_);
+    thread_done_ = true;
+    state_ = "stopped";
+}
+
+nlohmann::json RenderModule::status_json() const {
+    std::lock_guard lk(mu_);
+    nlohmann::json j{{"state", state_},
+                     {"requested", cfg_.renderer},
+                     {"backend", backend_.empty() ? nlohmann::json(nullptr) : nlohmann::json(backend_)},
+                     {"backend_reason", backend_reason_.empty() ? "chosen on the first render" : backend_reason_},
+                     {"renders", renders_},
+                     {"failures", failures_},
+                     {"last_render_ms", last_render_ms_},
+                     {"queued", queue_.size()}};
+    if (!error_.empty()) j["error"] = error_;
+    return j;
+}
+
+bool RenderModule::healthy() const {
+    std::lock_guard lk(mu_);
+    return thread_.joinable() && !thread_done_;
+}
+
+}  // namespace cf::daemon

@@ -1,0 +1,48 @@
+#pragma once
+// The tracker module: owns the tracker driver session (and, with tracker.source "sim", the
+// NDI Polaris simulator the driver talks to over a pty or TCP: the real driver code runs).
+//
+// Thread contract: start()/stop() from the daemon's main thread. The session's driver thread
+// calls the frame sink (set before start()) for every new frame; it must be quick (the daemon
+// queues the frame for the push thread). status_json() and latest_json() from any thread.
+#include <functional>
+#include <memory>
+#include <nlohmann/json.hpp>
+#include <string>
+
+#include "cortexfuse/daemon/config.hpp"
+#include "cortexfuse/drivers/sim/tracker_sim.hpp"
+#include "cortexfuse/drivers/tracker/session.hpp"
+
+namespace cf::daemon {
+
+nlohmann::json frame_to_json(const cf::tracker::TrackerFrame& f);
+
+class TrackerModule {
+public:
+    explicit TrackerModule(const DaemonConfig& c);
+    ~TrackerModule();
+    void set_frame_sink(std::function<void(const cf::tracker::TrackerFrame&)> sink) { sink_ = std::move(sink); }
+    /// Starts the simulator (if any) and the session. Throws ConfigError / std::runtime_error
+    /// when the simulator or a ROM file cannot be set up (a missing device is not an error:
+    /// the session keeps retrying and says so in its status).
+    void start();
+    void stop();
+    bool enabled() const { return cfg_.tracker_enabled; }
+    nlohmann::json status_json() const;
+    nlohmann::json latest_json() const;
+    /// For the watchdog: false when the session should stream and has not published a frame
+    /// for `stall_ms` while in state streaming.
+    bool healthy(int stall_ms) const;
+    /// The session's status (stopped when disabled).
+    cf::tracker::TrackerStatus status() const;
+
+private:
+    DaemonConfig cfg_;
+    std::function<void(const cf::tracker::TrackerFrame&)> sink_;
+    std::unique_ptr<cf::sim::TrackerSimulator> sim_;
+    std::unique_ptr<cf::tracker::TrackerSession> session_;
+    std::string source_desc_;
+};
+
+}  // namespace cf::daemon
