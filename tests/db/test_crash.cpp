@@ -11,6 +11,7 @@
 #include <unistd.h>
 
 #include <chrono>
+#include <cstdio>
 #include <map>
 #include <random>
 #include <set>
@@ -136,6 +137,7 @@ TEST(DbCrash, ConfirmedWritesSurviveSigkill) {
     }
     EXPECT_GE(static_cast<int>(confirmed.size()), 200);
     EXPECT_GE(kills, 5) << "rounds " << rounds;
+    std::printf("crash test: %d confirmed writes, %d rounds, %d SIGKILLs\n", static_cast<int>(confirmed.size()), rounds, kills);
     RecordProperty("rounds", rounds);
     RecordProperty("kills", kills);
 

@@ -293,7 +293,7 @@ TEST_F(IoFixture, BadZipsAreRefusedWithNothingStored) {
     std::erase_if(missing, [&](const auto& e) { return e.first == vol; });
     make_zip(t.path / "missing.zip", missing);
     expect_store_error([&] { dst->import_case_zip(t.path / "missing.zip"); }, K::Invalid,
-                       "missing.zip: volumes[1]: file '" + vol + "' is missing");
+                       "missing.zip: store.json: volumes[1]: file '" + vol + "' is missing");
     expect_nothing_imported(audit0);
 
     auto badjson = entries;
