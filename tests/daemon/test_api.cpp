@@ -1,0 +1,435 @@
+// The daemon in-process on a free port with a temporary state folder, the simulated tracker
+// (through the real driver over a pty) and the CPU renderer; HTTP through cpp-httplib, the
+// WebSocket through civetweb's client API.
+#include <civetweb.h>
+#include <gtest/gtest.h>
+#include <httplib.h>
+
+#include <chrono>
+#include <condition_variable>
+#include <filesystem>
+#include <fstream>
+#include <mutex>
+#include <opencv2/imgcodecs.hpp>
+#include <thread>
+
+#include "cortexfuse/daemon/daemon.hpp"
+
+using namespace cf::daemon;
+using nlohmann::json;
+namespace fs = std::filesystem;
+
+namespace {
+
+fs::path g_state, g_ui;
+std::unique_ptr<Daemon> g_daemon;
+
+/// The daemon starts on first use (config and process tests in this binary do not need it)
+/// and stops at the end of the test program.
+void start_daemon() {
+    const auto base = fs::temp_directory_path() / ("cf_daemon_api_" + std::to_string(::getpid()));
+    g_state = base / "state";
+    g_ui = base / "ui";
+    fs::create_directories(g_ui / "assets");
+    std::ofstream(g_ui / "index.html") << "<!doctype html><title>test ui</title>";
+    std::ofstream(g_ui / "assets" / "app.js") << "console.log('ui');";
+    std::ofstream(base / "secret.txt") << "outside the ui folder";
+    json c = default_config_json();
+    c["http"]["listen"] = "127.0.0.1:0";
+    c["http"]["max_body_bytes"] = 4096;
+    c["http"]["ui_dir"] = g_ui.string();
+    c["state_dir"] = g_state.string();
+    c["renderer"]["kind"] = "cpu";
+    // The phantom case generated at start is what the register test needs; other tests
+    // (ctest runs each in its own process) skip its few seconds of background work.
+    const std::string filter = ::testing::GTEST_FLAG(filter);
+    c["jobs"]["phantom_cases_at_start"] = filter.find("Register") != std::string::npos || filter == "*" ? 1 : 0;
+    c["jobs"]["progress_hz"] = 50;
+    g_daemon = std::make_unique<Daemon>(parse_config(c, "test"));
+    g_daemon->start();
+}
+
+int port() {
+    if (!g_daemon) start_daemon();
+    return g_daemon->port();
+}
+
+class DaemonEnv : public ::testing::Environment {
+public:
+    void TearDown() override {
+        if (!g_daemon) return;
+        EXPECT_TRUE(g_daemon->stop());
+        g_daemon.reset();
+        fs::remove_all(g_state.parent_path());
+    }
+};
+const auto* const g_env = ::testing::AddGlobalTestEnvironment(new DaemonEnv);
+
+httplib::Client client() {
+    httplib::Client c("127.0.0.1", port());
+    c.set_read_timeout(60, 0);
+    return c;
+}
+
+json get_json(const std::string& path, int expect = 200) {
+    auto c = client();
+    auto r = c.Get(path.c_str());
+    EXPECT_TRUE(r) << path;
+    if (!r) return nullptr;
+    EXPECT_EQ(r->status, expect) << path << ": " << r->body;
+    return json::parse(r->body, nullptr, false);
+}
+
+json post_json(const std::string& path, const json& body, int expect) {
+    auto c = client();
+    auto r = c.Post(path.c_str(), body.dump(), "application/json");
+    EXPECT_TRUE(r) << path;
+    if (!r) return nullptr;
+    EXPECT_EQ(r->status, expect) << path << ": " << r->body;
+    return json::parse(r->body, nullptr, false);
+}
+
+/// Polls a job until pred holds or the timeout ends; returns the last state.
+json wait_job(std::uint64_t id, const std::function<bool(const json&)>& pred, double timeout_s) {
+    const auto end = std::chrono::steady_clock::now() + std::chrono::duration<double>(timeout_s);
+    json j;
+    while (std::chrono::steady_clock::now() < end) {
+        j = get_json("/api/jobs/" + std::to_string(id));
+        if (pred(j)) return j;
+        std::this_thread::sleep_for(std::chrono::milliseconds(50));
+    }
+    return j;
+}
+
+/// A minimal WebSocket client on civetweb's client API: collects text messages.
+struct WsClient {
+    std::mutex mu;
+    std::condition_variable cv;
+    std::vector<json> messages;
+    bool closed = false;
+    mg_connection* conn = nullptr;
+
+    static int on_data(mg_connection*, int flags, char* data, size_t len, void* self) {
+        auto* w = static_cast<WsClient*>(self);
+        if ((flags & 0x0f) == MG_WEBSOCKET_OPCODE_TEXT) {
+            std::lock_guard lk(w->mu);
+            w->messages.push_back(json::parse(data, data + len, nullptr, false));
+            w->cv.notify_all();
+        }
+        return 1;
+    }
+    static void on_close(const mg_connection*, void* self) {
+        auto* w = static_cast<WsClient*>(self);
+        std::lock_guard lk(w->mu);
+        w->closed = true;
+        w->cv.notify_all();
+    }
+    bool connect() {
+        char err[256] = {0};
+        conn = mg_connect_websocket_client("127.0.0.1", port(), 0, err, sizeof err, "/api/ws", nullptr, on_data, on_close, this);
+        return conn != nullptr;
+    }
+    void send(const json& j) {
+        const std::string s = j.dump();
+        mg_websocket_client_write(conn, MG_WEBSOCKET_OPCODE_TEXT, s.data(), s.size());
+    }
+    void send_raw(const std::string& s) { mg_websocket_client_write(conn, MG_WEBSOCKET_OPCODE_TEXT, s.data(), s.size()); }
+    /// Waits for a message matching pred (searching all received so far).
+    std::optional<json> wait_for(const std::function<bool(const json&)>& pred, double timeout_s) {
+        std::unique_lock lk(mu);
+        std::optional<json> found;
+        cv.wait_for(lk, std::chrono::duration<double>(timeout_s), [&] {
+            for (const auto& m : messages)
+                if (pred(m)) {
+                    found = m;
+                    return true;
+                }
+            return closed;
+        });
+        return found;
+    }
+    std::optional<json> reply(int id, double timeout_s = 30) {
+        return wait_for([id](const json& m) { return m.contains("id") && m["id"] == id; }, timeout_s);
+    }
+    ~WsClient() {
+        if (conn) mg_close_connection(conn);
+    }
+};
+
+}  // namespace
+
+TEST(DaemonApi, StatusAnswersEveryModule) {
+    port();
+    const json s = get_json("/api/status");
+    EXPECT_EQ(s["name"], "cortexfused");
+    EXPECT_TRUE(s["version"].is_string());
+    EXPECT_GE(s["uptime_s"].get<double>(), 0);
+    const json& m = s["modules"];
+    for (const char* k : {"tracker", "camera", "renderer", "jobs", "http"}) EXPECT_TRUE(m.contains(k)) << k;
+    EXPECT_EQ(m["tracker"]["source"], "sim");
+    EXPECT_TRUE(m["tracker"]["counters"].contains("crc_errors"));
+    EXPECT_TRUE(m["jobs"]["kinds"].contains("register"));
+    EXPECT_EQ(m["renderer"]["requested"], "cpu");
+    // The tracker reaches streaming through the real driver and the frame rate is measured.
+    const auto end = std::chrono::steady_clock::now() + std::chrono::seconds(20);
+    json t;
+    while (std::chrono::steady_clock::now() < end) {
+        t = get_json("/api/status")["modules"]["tracker"];
+        if (t["state"] == "streaming" && t["counters"]["frames"].get<int>() > 120) break;  // the rate is over the last second
+        std::this_thread::sleep_for(std::chrono::milliseconds(100));
+    }
+    EXPECT_EQ(t["state"], "streaming") << t.dump();
+    EXPECT_NEAR(t["frame_rate_hz"].get<double>(), 60, 15) << t.dump();
+    EXPECT_GT(t["counters"]["frames"].get<int>(), 0);
+    std::string why;
+    EXPECT_TRUE(g_daemon->healthy(&why)) << why;
+    EXPECT_NE(g_daemon->status_line().find("tracker streaming"), std::string::npos) << g_daemon->status_line();
+}
+
+TEST(DaemonApi, ErrorsAreJsonWithTheRightStatus) {
+    auto c = client();
+    // Unknown endpoint.
+    auto r = c.Get("/api/nothing/here");
+    ASSERT_TRUE(r);
+    EXPECT_EQ(r->status, 404);
+    json e = json::parse(r->body);
+    EXPECT_EQ(e["error"]["code"], "not_found");
+    EXPECT_NE(e["error"]["message"].get<std::string>().find("/api/nothing/here"), std::string::npos);
+    // Wrong method: 405 naming the allowed ones.
+    r = c.Delete("/api/status");
+    ASSERT_TRUE(r);
+    EXPECT_EQ(r->status, 405);
+    EXPECT_EQ(r->get_header_value("Allow"), "GET");
+    EXPECT_EQ(json::parse(r->body)["error"]["code"], "method_not_allowed");
+    // Malformed JSON.
+    r = c.Post("/api/jobs", "{\"kind\": \"register\",", "application/json");
+    ASSERT_TRUE(r);
+    EXPECT_EQ(r->status, 400);
+    EXPECT_NE(json::parse(r->body)["error"]["message"].get<std::string>().find("not valid JSON"), std::string::npos);
+    // Oversized body (limit 4096 in this test's configuration).
+    r = c.Post("/api/render", std::string(10000, ' '), "application/json");
+    ASSERT_TRUE(r);
+    EXPECT_EQ(r->status, 413);
+    EXPECT_EQ(json::parse(r->body)["error"]["code"], "payload_too_large");
+    // A job id that is not a number, a job that does not exist.
+    r = c.Get("/api/jobs/abc");
+    ASSERT_TRUE(r);
+    EXPECT_EQ(r->status, 400);
+    r = c.Get("/api/jobs/999999");
+    ASSERT_TRUE(r);
+    EXPECT_EQ(r->status, 404);
+    // Bad job requests: unknown kind, unknown field, a case path that leaves the cases folder,
+    // a case that does not exist.
+    post_json("/api/jobs", {{"kind", "format_disk"}}, 400);
+    post_json("/api/jobs", {{"kind", "register"}, {"priority", 1}}, 400);
+    auto j = post_json("/api/jobs", {{"kind", "register"}, {"params", {{"case", "../../etc"}}}}, 400);
+    EXPECT_NE(j["error"]["message"].get<std::string>().find("register case"), std::string::npos);
+    post_json("/api/jobs", {{"kind", "register"}, {"params", {{"case", "/etc"}}}}, 400);
+    post_json("/api/jobs", {{"kind", "register"}, {"params", {{"case", "nope/case_0000"}}}}, 404);
+    post_json("/api/jobs", {{"kind", "register"}, {"params", {{"case", 5}}}}, 400);
+    post_json("/api/jobs", {{"kind", "phantom"}, {"params", {{"n", 0}}}}, 400);
+    post_json("/api/jobs", {{"kind", "phantom"}, {"params", {{"folder", "../x"}}}}, 400);
+    // GET on /api/ws without an upgrade.
+    r = c.Get("/api/ws");
+    ASSERT_TRUE(r);
+    EXPECT_EQ(r->status, 400);
+    // Nothing was queued by the refused requests.
+    for (const auto& job : get_json("/api/jobs")["jobs"]) EXPECT_EQ(job["kind"], "phantom");
+}
+
+TEST(DaemonApi, StaticFilesStayInTheUiFolder) {
+    auto c = client();
+    auto r = c.Get("/");
+    ASSERT_TRUE(r);
+    EXPECT_EQ(r->status, 200);
+    EXPECT_NE(r->body.find("test ui"), std::string::npos);
+    r = c.Get("/assets/app.js");
+    ASSERT_TRUE(r);
+    EXPECT_EQ(r->status, 200);
+    EXPECT_NE(r->body.find("console.log"), std::string::npos);
+    r = c.Get("/missing.js");
+    ASSERT_TRUE(r);
+    EXPECT_EQ(r->status, 404);
+    for (const char* evil : {"/../../etc/passwd", "/../secret.txt", "/assets/../../secret.txt", "/%2e%2e/secret.txt",
+                             "/%2e%2e/%2e%2e/%2e%2e/etc/passwd", "/..%2fsecret.txt", "/assets/..%5c..%5csecret.txt"}) {
+        r = c.Get(evil);
+        ASSERT_TRUE(r) << evil;
+        EXPECT_TRUE(r->status == 400 || r->status == 404) << evil << " -> " << r->status;
+        EXPECT_EQ(r->body.find("root:"), std::string::npos) << evil;
+        EXPECT_EQ(r->body.find("outside the ui folder"), std::string::npos) << evil;
+    }
+    r = c.Post("/index.html", "x", "text/plain");
+    ASSERT_TRUE(r);
+    EXPECT_EQ(r->status, 405);
+}
+
+TEST(DaemonApi, RenderReturnsADecodableImageOfTheAskedSize) {
+    auto c = client();
+    auto r = c.Post("/api/render", json{{"width", 160}, {"height", 120}, {"preset", "cortex_t1"}, {"opacity", 0.8}, {"view", "left"}}.dump(),
+                    "application/json");
+    ASSERT_TRUE(r);
+    ASSERT_EQ(r->status, 200) << r->body;
+    EXPECT_EQ(r->get_header_value("Content-Type"), "image/jpeg");
+    const std::vector<uchar> bytes(r->body.begin(), r->body.end());
+    cv::Mat img = cv::imdecode(bytes, cv::IMREAD_COLOR);
+    ASSERT_FALSE(img.empty());
+    EXPECT_EQ(img.cols, 160);
+    EXPECT_EQ(img.rows, 120);
+    // Something was rendered (the head is not all background).
+    double lo, hi;
+    cv::minMaxLoc(img.reshape(1), &lo, &hi);
+    EXPECT_GT(hi - lo, 50);
+    // PNG, with an explicit pose.
+    const json pose = json::array({json::array({0, -1, 0, 0}), json::array({0, 0, -1, 0}), json::array({1, 0, 0, 450}), json::array({0, 0, 0, 1})});
+    r = c.Post("/api/render", json{{"width", 64}, {"height", 48}, {"format", "png"}, {"T_camera_from_world", pose}, {"preset", "skin"}}.dump(),
+               "application/json");
+    ASSERT_TRUE(r);
+    ASSERT_EQ(r->status, 200) << r->body;
+    EXPECT_EQ(r->get_header_value("Content-Type"), "image/png");
+    img = cv::imdecode(std::vector<uchar>(r->body.begin(), r->body.end()), cv::IMREAD_COLOR);
+    EXPECT_EQ(img.cols, 64);
+    EXPECT_EQ(img.rows, 48);
+    // Bad requests name the field.
+    for (const auto& [body, field] : std::vector<std::pair<json, std::string>>{
+             {{{"width", 100000}}, "width"},
+             {{{"width", "wide"}}, "width"},
+             {{{"preset", "rainbow"}}, "preset"},
+             {{{"opacity", 2}}, "opacity"},
+             {{{"view", "sideways"}}, "view"},
+             {{{"format", "gif"}}, "format"},
+             {{{"colour", 1}}, "colour"},
+             {{{"T_camera_from_world", json::array({1, 2})}}, "T_camera_from_world"}}) {
+        r = c.Post("/api/render", body.dump(), "application/json");
+        ASSERT_TRUE(r);
+        EXPECT_EQ(r->status, 400) << body.dump();
+        EXPECT_NE(r->body.find(field), std::string::npos) << body.dump() << " -> " << r->body;
+    }
+    const json st = get_json("/api/status")["modules"]["renderer"];
+    EXPECT_EQ(st["backend"], "cpu") << st.dump();
+    EXPECT_GE(st["renders"].get<int>(), 2);
+}
+
+TEST(DaemonApi, WebSocketCarriesRpcAndTrackerFramesInOrder) {
+    WsClient ws;
+    ASSERT_TRUE(ws.connect());
+    // RPC: the same registry as HTTP.
+    ws.send({{"jsonrpc", "2.0"}, {"id", 1}, {"method", "status.get"}});
+    auto rep = ws.reply(1);
+    ASSERT_TRUE(rep);
+    EXPECT_EQ((*rep)["result"]["name"], "cortexfused");
+    ws.send({{"jsonrpc", "2.0"}, {"id", 2}, {"method", "no.such.method"}});
+    rep = ws.reply(2);
+    ASSERT_TRUE(rep);
+    EXPECT_EQ((*rep)["error"]["code"], 404);
+    ws.send_raw("{not json");
+    auto perr = ws.wait_for([](const json& m) { return m.contains("error") && m["error"]["code"] == -32700; }, 10);
+    EXPECT_TRUE(perr);
+    ws.send({{"jsonrpc", "2.0"}, {"id", 3}, {"method", "push.subscribe"}, {"params", {{"tracker_hz", -3}}}});
+    rep = ws.reply(3);
+    ASSERT_TRUE(rep);
+    EXPECT_EQ((*rep)["error"]["code"], 400);
+    // Render over the WebSocket: base64 JPEG.
+    ws.send({{"jsonrpc", "2.0"}, {"id", 4}, {"method", "render"}, {"params", {{"width", 48}, {"height", 32}}}});
+    rep = ws.reply(4, 60);
+    ASSERT_TRUE(rep);
+    EXPECT_EQ((*rep)["result"]["mime"], "image/jpeg");
+    EXPECT_GT((*rep)["result"]["base64"].get<std::string>().size(), 100u);
+
+    // Every frame: sequence numbers consecutive, device frame numbers increasing.
+    ws.send({{"jsonrpc", "2.0"}, {"id", 5}, {"method", "push.subscribe"}, {"params", {{"tracker_hz", 0}, {"topics", {"tracker"}}}}});
+    rep = ws.reply(5);
+    ASSERT_TRUE(rep);
+    EXPECT_EQ((*rep)["result"]["tracker_hz"], 0);
+    auto frames = [&] {
+        std::lock_guard lk(ws.mu);
+        std::vector<json> f;
+        bool after = false;
+        for (const auto& m : ws.messages) {
+            if (m.contains("id") && m["id"] == 5) after = true;
+            else if (after && m.value("method", "") == "notify_tracker_frame") f.push_back(m["params"]);
+        }
+        return f;
+    };
+    const auto end = std::chrono::steady_clock::now() + std::chrono::seconds(20);
+    while (frames().size() < 90 && std::chrono::steady_clock::now() < end) std::this_thread::sleep_for(std::chrono::milliseconds(50));
+    auto f = frames();
+    ASSERT_GE(f.size(), 90u);
+    for (size_t i = 1; i < f.size(); ++i) {
+        ASSERT_EQ(f[i]["seq"].get<std::uint64_t>(), f[i - 1]["seq"].get<std::uint64_t>() + 1) << "gap at " << i;
+        ASSERT_GT(f[i]["frame"].get<std::uint64_t>(), f[i - 1]["frame"].get<std::uint64_t>());
+    }
+    EXPECT_EQ(f.back()["tools"].size(), 2u);
+    // Throttled: 10 Hz gives about a sixth of the 60 Hz frames.
+    ws.send({{"jsonrpc", "2.0"}, {"id", 6}, {"method", "push.subscribe"}, {"params", {{"tracker_hz", 10}}}});
+    ASSERT_TRUE(ws.reply(6));
+    std::size_t before;
+    {
+        std::lock_guard lk(ws.mu);
+        before = ws.messages.size();
+    }
+    std::this_thread::sleep_for(std::chrono::seconds(2));
+    std::size_t tracker_msgs = 0;
+    {
+        std::lock_guard lk(ws.mu);
+        for (size_t i = before; i < ws.messages.size(); ++i) tracker_msgs += ws.messages[i].value("method", "") == "notify_tracker_frame";
+    }
+    EXPECT_GE(tracker_msgs, 12u);
+    EXPECT_LE(tracker_msgs, 28u);
+}
+
+TEST(DaemonApi, RegisterJobReportsProgressAndCancels) {
+    // The phantom case generated at start (a 'phantom' job).
+    json jobs = get_json("/api/jobs");
+    std::uint64_t phantom_id = 0;
+    for (const auto& j : jobs["jobs"])
+        if (j["kind"] == "phantom") phantom_id = j["id"];
+    ASSERT_NE(phantom_id, 0u);
+    json ph = wait_job(phantom_id, [](const json& j) { return j["state"] != "queued" && j["state"] != "running"; }, 240);
+    ASSERT_EQ(ph["state"], "succeeded") << ph.dump();
+    ASSERT_EQ(ph["result"]["cases"].size(), 1u);
+    const std::string case_name = ph["result"]["cases"][0];
+    EXPECT_EQ(get_json("/api/cases")["cases"][0], case_name);
+    // A second phantom job into the same folder is refused (nothing overwritten).
+    post_json("/api/jobs", {{"kind", "phantom"}, {"params", {{"folder", "phantom"}}}}, 409);
+
+    WsClient ws;
+    ASSERT_TRUE(ws.connect());
+    ws.send({{"jsonrpc", "2.0"}, {"id", 1}, {"method", "push.subscribe"}, {"params", {{"topics", {"jobs"}}}}});
+    ASSERT_TRUE(ws.reply(1));
+
+    json created = post_json("/api/jobs", {{"kind", "register"}, {"params", {{"case", case_name}}}}, 202);
+    const std::uint64_t id = created["id"];
+    // Progress with a stage and the NMI of the evaluations.
+    json running = wait_job(id, [](const json& j) { return j["fraction"].get<double>() > 0 && j["figures"].contains("nmi"); }, 120);
+    ASSERT_EQ(running["state"], "running") << running.dump();
+    EXPECT_GT(running["figures"]["nmi"].get<double>(), 1.0);  // NMI is in [1, 2]
+    EXPECT_FALSE(running["stage"].get<std::string>().empty());
+    // Cancel: the engine stops at its next check.
+    post_json("/api/jobs/" + std::to_string(id) + "/cancel", json::object(), 200);
+    json done = wait_job(id, [](const json& j) { return j["state"] != "running"; }, 60);
+    EXPECT_EQ(done["state"], "cancelled") << done.dump();
+    EXPECT_FALSE(fs::exists(g_state / "results" / ("register_" + std::to_string(id) + ".json")));
+    // The push channel carried the job's progress and its end.
+    auto ev = ws.wait_for([&](const json& m) { return m.value("method", "") == "notify_job" && m["params"]["id"] == id && m["params"]["state"] == "cancelled"; }, 10);
+    EXPECT_TRUE(ev);
+    std::lock_guard lk(ws.mu);
+    int progress_events = 0;
+    for (const auto& m : ws.messages)
+        progress_events += m.value("method", "") == "notify_job" && m["params"]["id"] == id && m["params"]["state"] == "running" && m["params"]["figures"].contains("nmi");
+    EXPECT_GE(progress_events, 1);
+}
+
+TEST(DaemonApi, CancelAQueuedJob) {
+    // Two phantom jobs: the second waits behind the first (one worker per kind).
+    json a = post_json("/api/jobs", {{"kind", "phantom"}, {"params", {{"folder", "extra_a"}, {"n", 1}}}}, 202);
+    json b = post_json("/api/jobs", {{"kind", "phantom"}, {"params", {{"folder", "extra_b"}, {"n", 1}}}}, 202);
+    json bj = post_json("/api/jobs/" + std::to_string(b["id"].get<int>()) + "/cancel", json::object(), 200);
+    EXPECT_EQ(bj["state"], "cancelled");
+    json aj = post_json("/api/jobs/" + std::to_string(a["id"].get<int>()) + "/cancel", json::object(), 200);
+    aj = wait_job(a["id"], [](const json& j) { return j["state"] != "running" && j["state"] != "queued"; }, 60);
+    EXPECT_EQ(aj["state"], "cancelled") << aj.dump();
+    // A cancelled generation leaves no folder behind.
+    EXPECT_FALSE(fs::exists(g_state / "cases" / "extra_a"));
+    EXPECT_FALSE(fs::exists(g_state / "cases" / "extra_b"));
+    for (const auto& e : fs::directory_iterator(g_state / "cases")) EXPECT_NE(e.path().filename().string().rfind(".tmp-", 0), 0u) << e.path();
+}

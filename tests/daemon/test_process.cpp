@@ -1,0 +1,128 @@
+// The executable: a bad configuration exits 2 naming the key; SIGTERM stops it cleanly
+// (exit 0) while it streams the tracker.
+#include <gtest/gtest.h>
+#include <httplib.h>
+#include <signal.h>
+#include <sys/wait.h>
+#include <unistd.h>
+
+#include <chrono>
+#include <filesystem>
+#include <fstream>
+#include <nlohmann/json.hpp>
+#include <thread>
+
+namespace fs = std::filesystem;
+
+namespace {
+struct Proc {
+    pid_t pid = -1;
+    int out_fd = -1;  // stdout + stderr
+};
+
+Proc spawn(const std::vector<std::string>& args) {
+    int p[2];
+    if (pipe(p) != 0) return {};
+    const pid_t pid = fork();
+    if (pid == 0) {
+        dup2(p[1], 1);
+        dup2(p[1], 2);
+        close(p[0]);
+        close(p[1]);
+        std::vector<char*> argv;
+        for (const auto& a : args) argv.push_back(const_cast<char*>(a.c_str()));
+        argv.push_back(nullptr);
+        execv(argv[0], argv.data());
+        _exit(127);
+    }
+    close(p[1]);
+    return {pid, p[0]};
+}
+
+/// Reads until `needle` appears or the timeout; returns all read.
+std::string read_until(int fd, const std::string& needle, double timeout_s) {
+    std::string out;
+    const auto end = std::chrono::steady_clock::now() + std::chrono::duration<double>(timeout_s);
+    while (std::chrono::steady_clock::now() < end && out.find(needle) == std::string::npos) {
+        fd_set s;
+        FD_ZERO(&s);
+        FD_SET(fd, &s);
+        timeval tv{0, 100000};
+        if (select(fd + 1, &s, nullptr, nullptr, &tv) > 0) {
+            char buf[4096];
+            const ssize_t n = read(fd, buf, sizeof buf);
+            if (n <= 0) break;
+            out.append(buf, std::size_t(n));
+        }
+    }
+    return out;
+}
+
+int wait_exit(pid_t pid, double timeout_s) {
+    const auto end = std::chrono::steady_clock::now() + std::chrono::duration<double>(timeout_s);
+    while (std::chrono::steady_clock::now() < end) {
+        int st = 0;
+        if (waitpid(pid, &st, WNOHANG) == pid) return WIFEXITED(st) ? WEXITSTATUS(st) : 128 + WTERMSIG(st);
+        std::this_thread::sleep_for(std::chrono::milliseconds(20));
+    }
+    kill(pid, SIGKILL);
+    waitpid(pid, nullptr, 0);
+    return -1;
+}
+}  // namespace
+
+TEST(DaemonProcess, BadConfigurationExitsTwoNamingTheKey) {
+    const auto dir = fs::temp_directory_path() / ("cf_daemon_proc_cfg_" + std::to_string(getpid()));
+    fs::create_directories(dir);
+    std::ofstream(dir / "bad.json") << R"({"http": {"threads": 1}})";
+    Proc p = spawn({CF_CORTEXFUSED, "--config", (dir / "bad.json").string()});
+    const std::string out = read_until(p.out_fd, "\n", 10);
+    EXPECT_EQ(wait_exit(p.pid, 10), 2);
+    EXPECT_NE(out.find("http.threads"), std::string::npos) << out;
+    close(p.out_fd);
+    // --print-default-config prints JSON that --check-config accepts back.
+    p = spawn({CF_CORTEXFUSED, "--print-default-config"});
+    const std::string def = read_until(p.out_fd, "\n}\n", 10);
+    EXPECT_EQ(wait_exit(p.pid, 10), 0);
+    close(p.out_fd);
+    std::ofstream(dir / "default.json") << def;
+    p = spawn({CF_CORTEXFUSED, "--config", (dir / "default.json").string(), "--check-config"});
+    const std::string chk = read_until(p.out_fd, "ok", 10);
+    EXPECT_EQ(wait_exit(p.pid, 10), 0) << chk;
+    close(p.out_fd);
+    fs::remove_all(dir);
+}
+
+TEST(DaemonProcess, SigtermStopsCleanlyWithExitZero) {
+    const auto dir = fs::temp_directory_path() / ("cf_daemon_proc_" + std::to_string(getpid()));
+    fs::create_directories(dir);
+    std::ofstream(dir / "c.json") << nlohmann::json{{"jobs", {{"phantom_cases_at_start", 0}}}, {"renderer", {{"kind", "cpu"}}}}.dump();
+    Proc p = spawn({CF_CORTEXFUSED, "--config", (dir / "c.json").string(), "--listen", "127.0.0.1:0", "--state-dir", (dir / "state").string()});
+    ASSERT_GT(p.pid, 0);
+    std::string out = read_until(p.out_fd, "/\n", 30);
+    const auto at = out.find("listening on http://127.0.0.1:");
+    ASSERT_NE(at, std::string::npos) << out;
+    const int port = std::stoi(out.substr(at + std::string("listening on http://127.0.0.1:").size()));
+    httplib::Client c("127.0.0.1", port);
+    // Wait until the tracker streams, so the stop has a live driver session to end.
+    bool streaming = false;
+    for (int i = 0; i < 100 && !streaming; ++i) {
+        auto r = c.Get("/api/status");
+        if (r && r->status == 200) streaming = nlohmann::json::parse(r->body)["modules"]["tracker"]["state"] == "streaming";
+        if (!streaming) std::this_thread::sleep_for(std::chrono::milliseconds(100));
+    }
+    EXPECT_TRUE(streaming);
+    const auto t0 = std::chrono::steady_clock::now();
+    kill(p.pid, SIGTERM);
+    const int code = wait_exit(p.pid, 20);
+    const double stop_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+    out += read_until(p.out_fd, "daemon: stopped", 2);
+    close(p.out_fd);
+    EXPECT_EQ(code, 0) << out;
+    EXPECT_LT(stop_s, 10);
+    EXPECT_NE(out.find("daemon: stopped"), std::string::npos) << out;
+    // The port is free again.
+    auto r = c.Get("/api/status");
+    EXPECT_FALSE(r);
+    fs::remove_all(dir);
+}
