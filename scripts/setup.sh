@@ -14,6 +14,7 @@ PACKAGES=(
   libegl-dev libepoxy-dev libegl-mesa0 libgl1-mesa-dri
   xvfb xauth jq
   ccache
+  libcivetweb-dev libcivetweb1 libcpp-httplib-dev libsystemd-dev systemd
   libsqlite3-dev sqlite3 libsodium-dev libzip-dev
 )
 missing=()
