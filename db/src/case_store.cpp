@@ -1,5 +1,7 @@
 #include <sodium.h>
 
+#include <set>
+
 #include "migrations.hpp"
 #include "store_impl.hpp"
 
@@ -775,6 +777,41 @@ IntegrityReport CaseStore::check_integrity(bool verify_blobs) {
     }
     rep.ok = rep.problems.empty();
     return rep;
+}
+
+std::int64_t CaseStore::remove_unreferenced_blobs(std::chrono::seconds min_age) {
+    std::lock_guard lk(impl_->mu);
+    auto& I = *impl_;
+    std::set<std::string> referenced;
+    {
+        auto st = I.db.prepare("SELECT sha256 FROM volumes UNION SELECT sha256 FROM photos UNION SELECT sha256 FROM results");
+        while (st.step()) referenced.insert(st.text(0));
+    }
+    const auto cutoff = fs::file_time_type::clock::now() - min_age;
+    std::error_code ec;
+    auto old_enough = [&](const fs::path& p) {
+        const auto t = fs::last_write_time(p, ec);
+        return !ec && t < cutoff;
+    };
+    std::int64_t removed = 0;
+    const fs::path root = I.blobs.root();
+    for (const auto& top : fs::directory_iterator(root, ec)) {
+        const std::string tn = top.path().filename().string();
+        if (tn.rfind(".tmp-", 0) == 0) {
+            if (old_enough(top.path()) && fs::remove(top.path(), ec)) ++removed;
+            continue;
+        }
+        if (tn.size() != 2 || !top.is_directory(ec)) continue;
+        for (const auto& f : fs::directory_iterator(top.path(), ec)) {
+            const std::string sha = tn + f.path().filename().string();
+            if (!BlobStore::valid_hash(sha) || referenced.count(sha) || !old_enough(f.path())) continue;
+            if (fs::remove(f.path(), ec)) ++removed;
+        }
+    }
+    for (const auto& d : fs::directory_iterator(I.dir / "tmp", ec))
+        if (d.path().filename().string().rfind("import-", 0) == 0 && old_enough(d.path()))
+            removed += fs::remove_all(d.path(), ec) > 0 ? 1 : 0;
+    return removed;
 }
 
 }  // namespace cf::db

@@ -299,3 +299,22 @@ TEST_F(StoreFixture, TwoStoresOnOneFolderSeeEachOther) {
     s2->set_landmarks(c.id, landmarks(4));
     EXPECT_EQ(s->get_case(c.id).landmarks->points.size(), 4u);
 }
+
+TEST_F(StoreFixture, UnreferencedBlobsAreRemovedWhenOld) {
+    const auto c = s->create_case(std::nullopt, "gc");
+    const auto kept = s->import_volume_bytes(c.id, "referenced", "v.nii", Modality::T1);
+    BlobStore raw(s->dir() / "blobs");
+    const auto orphan_old = raw.put_bytes("orphan, old");    // as left by a crash before the commit
+    const auto orphan_new = raw.put_bytes("orphan, young");  // an import in flight elsewhere
+    write_file(s->dir() / "blobs" / ".tmp-abc123", "half a blob");
+    const auto two_hours_ago = fs::file_time_type::clock::now() - std::chrono::hours(2);
+    fs::last_write_time(orphan_old.path, two_hours_ago);
+    fs::last_write_time(kept.blob.path, two_hours_ago);
+    fs::last_write_time(s->dir() / "blobs" / ".tmp-abc123", two_hours_ago);
+    EXPECT_EQ(s->remove_unreferenced_blobs(std::chrono::hours(1)), 2);
+    EXPECT_FALSE(fs::exists(orphan_old.path));
+    EXPECT_FALSE(fs::exists(s->dir() / "blobs" / ".tmp-abc123"));
+    EXPECT_TRUE(fs::exists(orphan_new.path));
+    EXPECT_EQ(s->read_blob(kept.blob.sha256), "referenced");
+    EXPECT_TRUE(s->check_integrity().ok);
+}

@@ -330,6 +330,10 @@ public:
     // -- checks --
     /// PRAGMA integrity_check, foreign_key_check, and (verify_blobs) every referenced blob.
     IntegrityReport check_integrity(bool verify_blobs = true);
+    /// Removes what a crash or a refused import can leave behind: blobs no row names, blob
+    /// temporaries and zip-import scratch folders, each only when older than `min_age` (so an
+    /// import in flight in another process keeps its blobs). Returns how many were removed.
+    std::int64_t remove_unreferenced_blobs(std::chrono::seconds min_age = std::chrono::hours(1));
 
     struct Impl;
 
