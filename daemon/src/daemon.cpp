@@ -17,6 +17,8 @@
 #include "cortexfuse/daemon/log.hpp"
 #include "cortexfuse/drivers/camera.hpp"
 #include "cortexfuse/render/renderer_factory.hpp"
+#include "case_api.hpp"
+#include "cortexfuse/db/case_store.hpp"
 #include "http_server.hpp"
 #include "render_module.hpp"
 #include "tracker_module.hpp"
@@ -109,26 +111,6 @@ std::uint64_t parse_id(const Request& r) {
     return std::stoull(s);
 }
 
-/// A case name relative to the cases folder: segments of [A-Za-z0-9_.-], no "." or "..".
-fs::path case_dir_from_name(const fs::path& cases_root, const nlohmann::json& v, const std::string& field) {
-    if (!v.is_string()) throw ApiError(400, "bad_request", field + ": must be a string (a case name such as phantom/case_0000)");
-    const std::string name = v.get<std::string>();
-    static const std::regex seg("[A-Za-z0-9_][A-Za-z0-9_.-]{0,127}");
-    if (name.empty() || name.size() > 512) throw ApiError(400, "bad_request", field + ": must be 1..512 characters");
-    std::stringstream ss(name);
-    std::string part;
-    fs::path rel;
-    while (std::getline(ss, part, '/')) {
-        if (!std::regex_match(part, seg) || part == "." || part == "..")
-            throw ApiError(400, "bad_request", field + " '" + name + "': each part must be letters, digits, _ . - (no '..', no absolute paths)");
-        rel /= part;
-    }
-    const fs::path dir = cases_root / rel;
-    std::error_code ec;
-    if (!fs::is_regular_file(dir / "case.json", ec)) throw ApiError(404, "not_found", field + " '" + name + "': no such case (no case.json)");
-    return dir;
-}
-
 std::string folder_name(const nlohmann::json& v, const std::string& field) {
     if (!v.is_string()) throw ApiError(400, "bad_request", field + ": must be a string");
     const std::string s = v.get<std::string>();
@@ -166,6 +148,8 @@ struct Daemon::Impl {
     std::unique_ptr<CameraModule> camera;
     std::unique_ptr<JobQueue> jobs;
     std::unique_ptr<HttpServer> http;
+    std::unique_ptr<cf::db::CaseStore> store;
+    fs::path store_dir, work_dir;
     std::thread monitor;
     std::mutex monitor_mu;
     std::condition_variable monitor_cv;
@@ -202,6 +186,16 @@ void Daemon::start() {
     for (const auto& e : fs::directory_iterator(d.cases_dir, ec))
         if (e.path().filename().string().rfind(".tmp-", 0) == 0) fs::remove_all(e.path(), ec);
 
+    d.work_dir = d.state_dir / "work";
+    fs::remove_all(d.work_dir, ec);  // exports of an interrupted job: nothing in them is kept
+    fs::create_directories(d.work_dir, ec);
+    d.store_dir = d.cfg.store_dir.empty() ? d.state_dir / "store" : fs::path(d.cfg.store_dir);
+    try {
+        d.store = cf::db::CaseStore::open(d.store_dir);
+    } catch (const std::exception& e) {
+        throw std::runtime_error("store.dir " + d.store_dir.string() + ": " + e.what());
+    }
+
     d.tracker = std::make_unique<TrackerModule>(d.cfg);
     d.render = std::make_unique<RenderModule>(d.cfg);
     d.camera = std::make_unique<CameraModule>(d.cfg);
@@ -209,6 +203,21 @@ void Daemon::start() {
     d.http = std::make_unique<HttpServer>(d.cfg, d.registry);
     d.register_job_kinds();
     d.register_endpoints();
+    register_case_endpoints(d.registry, *d.store, d.cases_dir, d.work_dir, d.cfg.session_ttl_s);
+    cf::db::CaseStore* store = d.store.get();
+    d.http->set_authenticator([store](const std::string& token, Client& c) {
+        try {
+            const auto s = store->check_session(token);
+            if (!s) return false;
+            c.role = cf::db::to_string(s->user.role);
+            c.user = s->user.name;
+            c.user_id = s->user.id;
+            return true;
+        } catch (const std::exception& e) {
+            log(LogLevel::error, "http", std::string("session check failed: ") + e.what());
+            return false;
+        }
+    });
 
     HttpServer* http = d.http.get();
     d.jobs->set_listener([http](const JobInfo& j) {
@@ -307,7 +316,7 @@ nlohmann::json Daemon::Impl::status() const {
                        {"renderer", render->status_json()},
                        {"jobs", jobs->status()},
                        {"http", http->status_json()},
-                       {"case_store", {{"state", "not connected"}, {"cases_dir", cases_dir.string()}}}}}};
+                       {"case_store", {{"state", store ? "open" : "closed"}, {"dir", store_dir.string()}, {"schema_version", store ? store->schema_version() : 0}}}}}};
     return j;
 }
 
@@ -371,48 +380,130 @@ void Daemon::Impl::register_job_kinds() {
 
     JobKind reg;
     reg.name = "register";
-    reg.validate = [cases](const nlohmann::json& p) {
-        reject_unknown(p, {"case"}, "register");
-        if (!p.contains("case")) throw ApiError(400, "bad_request", "register case: missing (a case name such as phantom/case_0000)");
-        case_dir_from_name(cases, p["case"], "register case");
-        return nlohmann::json{{"case", p["case"]}};
-    };
-    reg.run = [cases, results, c](const nlohmann::json& p, JobContext& ctx) {
-        const fs::path dir = case_dir_from_name(cases, p["case"], "register case");
-        Progress prog = ctx.progress();
-        ctx.report("loading case", 0);
-        LoadedCase lc = load_case(dir, &prog);
-        ctx.check();
-        RegistrationParams rp = RegistrationParams::defaults();
-        std::ostringstream why;
-        rp.renderer_factory = renderer_factory(parse_renderer_kind(c.renderer, "renderer.kind"), &why);
-        Registration engine(lc.volume, lc.mask, rp);
-        prog.evaluation = [&ctx](int e, double s, double best) { ctx.figures({{"evaluation", e}, {"nmi", s}, {"best_nmi", best}}); };
-        const RegistrationResult r = engine.run(lc.photo, &prog);
-        ctx.check();
-        nlohmann::json full = result_to_json(r);
-        full["case"] = p["case"];
-        const fs::path out = results / ("register_" + std::to_string(ctx.id()) + ".json");
-        write_file_atomic(out, full.dump(2));
-        nlohmann::json summary{{"case", p["case"]},
-                               {"similarity", r.similarity},
-                               {"initial_similarity", r.initial_similarity},
-                               {"evaluations", r.evaluations},
-                               {"seconds", r.seconds},
-                               {"renderer", engine.renderer().name()},
-                               {"T_camera_from_world", pose_to_json(r.T_camera_from_world)},
-                               {"result_file", out.filename().string()}};
-        if (lc.spec.truth && !lc.spec.truth->targets_world_mm.empty()) {
-            // Mean 3D displacement of the truth targets between the true and the found pose (camera frame).
-            double sum = 0;
-            const Pose& Tt = lc.spec.truth->T_camera_from_world;
-            for (const auto& t : lc.spec.truth->targets_world_mm) {
-                const Eigen::Vector4d h(t.x(), t.y(), t.z(), 1);
-                sum += ((Tt * h).head<3>() - (r.T_camera_from_world * h).head<3>()).norm();
-            }
-            summary["target_error_mm"] = sum / double(lc.spec.truth->targets_world_mm.size());
+    Impl* self = this;
+    reg.validate = [cases, self](const nlohmann::json& p) {
+        reject_unknown(p, {"case", "case_id"}, "register");
+        if (p.contains("case") == p.contains("case_id"))
+            throw ApiError(400, "bad_request", "register: give exactly one of case (a case folder such as phantom/case_0000) or case_id (a case in the store)");
+        if (p.contains("case")) {
+            case_dir_from_name(cases, p["case"], "register case");
+            return nlohmann::json{{"case", p["case"]}};
         }
-        return summary;
+        if (!p["case_id"].is_number_integer()) throw ApiError(400, "bad_request", "register case_id: must be an integer");
+        try {
+            const auto rec = self->store->get_case(p["case_id"].get<std::int64_t>());
+            if (rec.photos.empty() || rec.volumes.empty())
+                throw ApiError(409, "conflict", "register case_id " + std::to_string(rec.summary.id) + ": the case needs a volume and a photo first");
+        } catch (const cf::db::StoreError& e) {
+            rethrow_store_error(e);
+        }
+        return nlohmann::json{{"case_id", p["case_id"]}};
+    };
+    reg.run = [cases, results, c, self](const nlohmann::json& p, JobContext& ctx) {
+        // A case of the store is exported to a work folder (a case folder, blobs verified),
+        // registered there, and the run is stored back with its parameters, whatever its end.
+        std::optional<std::int64_t> case_id;
+        fs::path dir;
+        if (p.contains("case_id")) {
+            case_id = p["case_id"].get<std::int64_t>();
+            dir = self->work_dir / ("register_" + std::to_string(ctx.id()));
+            std::error_code ec;
+            fs::remove_all(dir, ec);
+            ctx.report("exporting case", 0);
+            try {
+                self->store->export_case_folder(*case_id, dir, cf::db::Actor{"jobs", std::nullopt});
+            } catch (const cf::db::StoreError& e) {
+                throw std::runtime_error(std::string("case ") + std::to_string(*case_id) + ": " + e.what());
+            }
+        } else {
+            dir = case_dir_from_name(cases, p["case"], "register case");
+        }
+        struct Cleanup {
+            fs::path d;
+            bool remove;
+            ~Cleanup() {
+                std::error_code ec;
+                if (remove) fs::remove_all(d, ec);
+            }
+        } cleanup{dir, case_id.has_value()};
+        RegistrationParams rp = RegistrationParams::defaults();
+        auto store_run = [&](cf::db::RegistrationStatus status, const RegistrationResult* r, const std::string& error,
+                             const std::string& result_json) -> std::optional<std::int64_t> {
+            if (!case_id) return std::nullopt;
+            cf::db::RegistrationInput in;
+            in.status = status;
+            in.params = to_json(rp);
+            if (!error.empty()) in.error = error;
+            if (r) {
+                in.initial_pose = nlohmann::json{{"T_camera_from_world", pose_to_json(r->initial_T_camera_from_world)}};
+                in.final_pose = nlohmann::json{{"T_camera_from_world", pose_to_json(r->T_camera_from_world)}};
+                in.nmi = r->similarity;
+                in.seconds = r->seconds;
+                in.evaluations = r->evaluations;
+                in.stages = result_to_json(*r).value("stages", nlohmann::json::array());
+                cf::db::ResultInput file;
+                file.kind = "registration_json";
+                file.name = "registration.json";
+                file.media_type = "application/json";
+                file.bytes = result_json;
+                in.results.push_back(std::move(file));
+            }
+            return self->store->add_registration(*case_id, in, cf::db::Actor{"jobs", std::nullopt}).id;
+        };
+        try {
+            Progress prog = ctx.progress();
+            ctx.report("loading case", 0);
+            LoadedCase lc = load_case(dir, &prog);
+            ctx.check();
+            std::ostringstream why;
+            rp.renderer_factory = renderer_factory(parse_renderer_kind(c.renderer, "renderer.kind"), &why);
+            Registration engine(lc.volume, lc.mask, rp);
+            prog.evaluation = [&ctx](int e, double s, double best) { ctx.figures({{"evaluation", e}, {"nmi", s}, {"best_nmi", best}}); };
+            const RegistrationResult r = engine.run(lc.photo, &prog);
+            ctx.check();
+            nlohmann::json full = result_to_json(r);
+            if (case_id) full["case_id"] = *case_id;
+            else full["case"] = p["case"];
+            const std::string full_text = full.dump(2);
+            const fs::path out = results / ("register_" + std::to_string(ctx.id()) + ".json");
+            write_file_atomic(out, full_text);
+            nlohmann::json summary{{"similarity", r.similarity},
+                                   {"initial_similarity", r.initial_similarity},
+                                   {"evaluations", r.evaluations},
+                                   {"seconds", r.seconds},
+                                   {"renderer", engine.renderer().name()},
+                                   {"T_camera_from_world", pose_to_json(r.T_camera_from_world)},
+                                   {"result_file", out.filename().string()}};
+            if (case_id) summary["case_id"] = *case_id;
+            else summary["case"] = p["case"];
+            if (lc.spec.truth && !lc.spec.truth->targets_world_mm.empty()) {
+                // Mean 3D displacement of the truth targets between the true and the found pose (camera frame).
+                double sum = 0;
+                const Pose& Tt = lc.spec.truth->T_camera_from_world;
+                for (const auto& t : lc.spec.truth->targets_world_mm) {
+                    const Eigen::Vector4d h(t.x(), t.y(), t.z(), 1);
+                    sum += ((Tt * h).head<3>() - (r.T_camera_from_world * h).head<3>()).norm();
+                }
+                summary["target_error_mm"] = sum / double(lc.spec.truth->targets_world_mm.size());
+            }
+            if (auto rid = store_run(cf::db::RegistrationStatus::succeeded, &r, "", full_text)) summary["registration_id"] = *rid;
+            return summary;
+        } catch (const cf::Cancelled&) {
+            try {
+                store_run(cf::db::RegistrationStatus::cancelled, nullptr, "cancelled", "");
+            } catch (const std::exception& e) {
+                log(LogLevel::error, "jobs", std::string("could not record the cancelled run: ") + e.what());
+            }
+            throw;
+        } catch (const std::exception& e) {
+            if (ctx.cancelled()) throw;
+            try {
+                store_run(cf::db::RegistrationStatus::failed, nullptr, e.what(), "");
+            } catch (const std::exception& e2) {
+                log(LogLevel::error, "jobs", std::string("could not record the failed run: ") + e2.what());
+            }
+            throw;
+        }
     };
     jobs->add_kind(reg);
 }
@@ -478,7 +569,7 @@ void Daemon::Impl::register_endpoints() {
                       if (!d->jobs->cancel(id)) throw ApiError(404, "not_found", "job " + std::to_string(id) + ": no such job");
                       return json_ok(to_json(*d->jobs->get(id)));
                   }});
-    registry.add({"GET", "/api/cases", "cases.list", Access::read, "Case folders under the state folder (until the case store lands)",
+    registry.add({"GET", "/api/case-folders", "case_folders.list", Access::read, "Case folders under the state folder's cases/ (phantom cases; import them with POST /api/cases/import)",
                   [d, json_ok](const Request&) {
                       nlohmann::json a = nlohmann::json::array();
                       std::error_code ec;
@@ -496,7 +587,7 @@ void Daemon::Impl::register_endpoints() {
                               a.push_back(fs::relative(it->path().parent_path(), d->cases_dir).string());
                       }
                       std::sort(a.begin(), a.end());
-                      return json_ok({{"cases", a}});
+                      return json_ok({{"folders", a}});
                   }});
     registry.add({"GET", "/api/render/presets", "render.presets", Access::read, "Transfer function presets",
                   [json_ok](const Request&) { return json_ok({{"presets", preset_names()}}); }});

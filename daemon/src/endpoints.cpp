@@ -70,6 +70,8 @@ void EndpointRegistry::add(Endpoint e) {
 
 void EndpointRegistry::check_access(const Endpoint& e, const Client& c) const {
     if (role_allows(c.role, e.access)) return;
+    if (c.role.empty() && !c.token.empty())
+        throw ApiError(401, "unauthorized", e.method + " " + e.path + ": the session token is unknown or expired; log in again");
     if (c.role.empty())
         throw ApiError(401, "unauthorized",
                        e.method + " " + e.path + " needs a login from " + (c.address.empty() ? "a remote host" : c.address) +

@@ -170,8 +170,26 @@ Client HttpServer::client_of(const mg_connection* conn) const {
     Client c;
     c.address = ri ? ri->remote_addr : "";
     c.loopback = c.address.rfind("127.", 0) == 0 || c.address == "::1" || c.address.rfind("::ffff:127.", 0) == 0;
-    // Loopback is the kiosk on the cart. Sessions for other hosts arrive with the user store.
-    if (c.loopback || !cfg_.remote_requires_login) c.role = "kiosk";
+    // A bearer token (header, or ?token= for the WebSocket, which browsers open without
+    // headers) names a session; without one, loopback is the kiosk on the cart.
+    std::string token;
+    if (const char* h = mg_get_header(conn, "Authorization"); h && std::strncmp(h, "Bearer ", 7) == 0) token = h + 7;
+    else if (ri && ri->query_string) {
+        const auto q = parse_query(ri->query_string);
+        if (auto it = q.find("token"); it != q.end()) token = it->second;
+    }
+    if (!token.empty()) {
+        c.token = token;
+        if (!auth_ || !auth_(token, c)) {
+            c.role.clear();  // an unknown or expired session is refused, also from loopback
+            c.user.clear();
+        }
+        return c;
+    }
+    if (c.loopback || !cfg_.remote_requires_login) {
+        c.role = "kiosk";
+        c.user = "kiosk";
+    }
     return c;
 }
 

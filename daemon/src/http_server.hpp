@@ -15,6 +15,7 @@
 #include <condition_variable>
 #include <cstdint>
 #include <deque>
+#include <functional>
 #include <map>
 #include <memory>
 #include <mutex>
@@ -39,6 +40,10 @@ public:
     /// Stops accepting, closes the WebSockets, joins all threads.
     void stop();
     int port() const { return port_; }
+    /// Resolves a bearer token (Authorization: Bearer T, or ?token=T on /api/ws) into the
+    /// client's role and user; returns false for an unknown or expired token. Set before start().
+    using Authenticator = std::function<bool(const std::string& token, Client& client)>;
+    void set_authenticator(Authenticator a) { auth_ = std::move(a); }
 
     /// Enqueue a notification for the WebSocket clients. `topic`: "tracker", "jobs", "status".
     /// `t_ns`: the event's steady time (tracker frames are throttled per client on it).
@@ -74,6 +79,7 @@ private:
     DaemonConfig cfg_;
     const EndpointRegistry& registry_;
     mg_context* ctx_ = nullptr;
+    Authenticator auth_;
     int port_ = 0;
 
     mutable std::mutex clients_mu_;

@@ -43,7 +43,7 @@ void start_daemon() {
     // The phantom case generated at start is what the register test needs; other tests
     // (ctest runs each in its own process) skip its few seconds of background work.
     const std::string filter = ::testing::GTEST_FLAG(filter);
-    c["jobs"]["phantom_cases_at_start"] = filter.find("Register") != std::string::npos || filter == "*" ? 1 : 0;
+    c["jobs"]["phantom_cases_at_start"] = filter.find("Register") != std::string::npos || filter == "*" || filter.find("DaemonApi.*") != std::string::npos ? 1 : 0;
     c["jobs"]["progress_hz"] = 50;
     g_daemon = std::make_unique<Daemon>(parse_config(c, "test"));
     g_daemon->start();
@@ -87,6 +87,16 @@ json post_json(const std::string& path, const json& body, int expect) {
     if (!r) return nullptr;
     EXPECT_EQ(r->status, expect) << path << ": " << r->body;
     return json::parse(r->body, nullptr, false);
+}
+
+/// A request with a bearer token; returns (status, parsed body).
+std::pair<int, json> call(const std::string& method, const std::string& path, const json& body, const std::string& token) {
+    auto c = client();
+    httplib::Headers h;
+    if (!token.empty()) h.emplace("Authorization", "Bearer " + token);
+    httplib::Result r = method == "GET" ? c.Get(path.c_str(), h) : c.Post(path.c_str(), h, body.dump(), "application/json");
+    if (!r) return {0, nullptr};
+    return {r->status, json::parse(r->body, nullptr, false)};
 }
 
 /// Polls a job until pred holds or the timeout ends; returns the last state.
@@ -388,7 +398,6 @@ TEST(DaemonApi, RegisterJobReportsProgressAndCancels) {
     ASSERT_EQ(ph["state"], "succeeded") << ph.dump();
     ASSERT_EQ(ph["result"]["cases"].size(), 1u);
     const std::string case_name = ph["result"]["cases"][0];
-    EXPECT_EQ(get_json("/api/cases")["cases"][0], case_name);
     // A second phantom job into the same folder is refused (nothing overwritten).
     post_json("/api/jobs", {{"kind", "phantom"}, {"params", {{"folder", "phantom"}}}}, 409);
 
@@ -412,11 +421,101 @@ TEST(DaemonApi, RegisterJobReportsProgressAndCancels) {
     // The push channel carried the job's progress and its end.
     auto ev = ws.wait_for([&](const json& m) { return m.value("method", "") == "notify_job" && m["params"]["id"] == id && m["params"]["state"] == "cancelled"; }, 10);
     EXPECT_TRUE(ev);
-    std::lock_guard lk(ws.mu);
-    int progress_events = 0;
-    for (const auto& m : ws.messages)
-        progress_events += m.value("method", "") == "notify_job" && m["params"]["id"] == id && m["params"]["state"] == "running" && m["params"]["figures"].contains("nmi");
-    EXPECT_GE(progress_events, 1);
+    {
+        std::lock_guard lk(ws.mu);
+        int progress_events = 0;
+        for (const auto& m : ws.messages)
+            progress_events += m.value("method", "") == "notify_job" && m["params"]["id"] == id && m["params"]["state"] == "running" && m["params"]["figures"].contains("nmi");
+        EXPECT_GE(progress_events, 1);
+    }
+
+    // The same case through the case store: import the folder, register by case id, cancel;
+    // the store keeps the cancelled run.
+    EXPECT_EQ(get_json("/api/case-folders")["folders"][0], case_name);
+    json imported = post_json("/api/cases/import", {{"folder", case_name}}, 201);
+    const std::int64_t case_id = imported["id"];
+    EXPECT_EQ(imported["title"], "phantom_case_0000");
+    post_json("/api/cases/import", {{"folder", "../../etc"}}, 400);
+    post_json("/api/jobs", {{"kind", "register"}, {"params", {{"case_id", 424242}}}}, 404);
+    post_json("/api/jobs", {{"kind", "register"}, {"params", {{"case_id", case_id}, {"case", case_name}}}}, 400);
+    json c2 = post_json("/api/jobs", {{"kind", "register"}, {"params", {{"case_id", case_id}}}}, 202);
+    const std::uint64_t id2 = c2["id"];
+    json r2 = wait_job(id2, [](const json& j) { return j["figures"].contains("nmi") || (j["state"] != "running" && j["state"] != "queued"); }, 120);
+    ASSERT_EQ(r2["state"], "running") << r2.dump();
+    post_json("/api/jobs/" + std::to_string(id2) + "/cancel", json::object(), 200);
+    r2 = wait_job(id2, [](const json& j) { return j["state"] != "running"; }, 60);
+    EXPECT_EQ(r2["state"], "cancelled") << r2.dump();
+    const json rec = get_json("/api/cases/" + std::to_string(case_id));
+    ASSERT_EQ(rec["registrations"].size(), 1u) << rec.dump();
+    EXPECT_EQ(rec["registrations"][0]["status"], "cancelled");
+    EXPECT_EQ(rec["volumes"].size(), 2u);  // T1 and its brain mask, staged beside the case
+    EXPECT_TRUE(fs::is_empty(g_state / "work"));  // the export and the staged import are gone
+}
+
+TEST(DaemonApi, CasesLoginsAndRoles) {
+    // From loopback without a token: the kiosk (every access).
+    auto [st, u] = call("POST", "/api/users", {{"name", "rita"}, {"password", "correct horse"}, {"role", "reviewer"}}, "");
+    ASSERT_EQ(st, 201) << u.dump();
+    EXPECT_EQ(call("POST", "/api/users", {{"name", "rita"}, {"password", "another one"}, {"role", "reviewer"}}, "").first, 409);
+    EXPECT_EQ(call("POST", "/api/users", {{"name", "sam"}, {"password", "longenough"}, {"role", "janitor"}}, "").first, 400);
+    EXPECT_EQ(call("POST", "/api/users", {{"name", "sam"}, {"password", "short"}, {"role", "surgeon"}}, "").first, 400);
+    ASSERT_EQ(call("POST", "/api/users", {{"name", "sam"}, {"password", "scalpel-please"}, {"role", "surgeon"}}, "").first, 201);
+
+    auto [s1, created] = call("POST", "/api/cases", {{"title", "left frontal"}, {"patient", {{"mrn", "MRN-1"}, {"family_name", "Doe"}}}}, "");
+    ASSERT_EQ(s1, 201) << created.dump();
+    const std::int64_t cid = created["id"];
+    const std::size_t n_cases = get_json("/api/cases")["cases"].size();
+    // Bad requests change nothing.
+    EXPECT_EQ(call("POST", "/api/cases", {{"patient", {{"mrn", "MRN-2"}, {"family_name", "Roe"}}}}, "").first, 400);
+    EXPECT_EQ(call("POST", "/api/cases", {{"title", "x"}, {"patient", {{"mrn", "MRN-3"}}}}, "").first, 400);
+    EXPECT_EQ(call("POST", "/api/cases", {{"title", 5}}, "").first, 400);
+    EXPECT_EQ(get_json("/api/cases")["cases"].size(), n_cases);
+    EXPECT_EQ(call("POST", "/api/cases/" + std::to_string(cid) + "/state", {{"state", "flying"}}, "").first, 400);
+    EXPECT_EQ(call("POST", "/api/cases/" + std::to_string(cid) + "/state", {{"state", "registered"}}, "").first, 409);  // steps skipped
+    EXPECT_EQ(call("GET", "/api/cases/99999", nullptr, "").first, 404);
+    EXPECT_EQ(call("GET", "/api/cases?sort=sideways", nullptr, "").first, 400);
+    EXPECT_EQ(call("GET", "/api/cases?limit=0", nullptr, "").first, 400);
+
+    // Logins.
+    EXPECT_EQ(call("POST", "/api/login", {{"name", "rita"}, {"password", "wrong horse"}}, "").first, 401);
+    EXPECT_EQ(call("POST", "/api/login", {{"name", "nobody"}, {"password", "whatever1"}}, "").first, 401);
+    EXPECT_EQ(call("POST", "/api/login", {{"name", "rita"}}, "").first, 400);
+    auto [s2, login] = call("POST", "/api/login", {{"name", "rita"}, {"password", "correct horse"}}, "");
+    ASSERT_EQ(s2, 200) << login.dump();
+    EXPECT_EQ(login["role"], "reviewer");
+    const std::string reviewer = login["token"];
+    // A reviewer reads and never changes.
+    auto [s3, one] = call("GET", "/api/cases/" + std::to_string(cid), nullptr, reviewer);
+    EXPECT_EQ(s3, 200);
+    EXPECT_EQ(one["patient"]["mrn"], "MRN-1");
+    EXPECT_EQ(call("POST", "/api/cases", {{"title", "sneaky"}}, reviewer).first, 403);
+    EXPECT_EQ(call("POST", "/api/cases/" + std::to_string(cid) + "/state", {{"state", "planned"}}, reviewer).first, 403);
+    EXPECT_EQ(call("POST", "/api/jobs", {{"kind", "phantom"}, {"params", {{"folder", "r"}}}}, reviewer).first, 403);
+    EXPECT_EQ(call("POST", "/api/users", {{"name", "evil"}, {"password", "12345678"}, {"role", "admin"}}, reviewer).first, 403);
+    EXPECT_EQ(get_json("/api/cases")["cases"].size(), n_cases);
+    // A surgeon changes; the audit trail names who viewed and changed what.
+    const std::string surgeon = call("POST", "/api/login", {{"name", "sam"}, {"password", "scalpel-please"}}, "").second["token"];
+    EXPECT_EQ(call("POST", "/api/cases/" + std::to_string(cid) + "/state", {{"state", "planned"}}, surgeon).first, 200);
+    const json audit = call("GET", "/api/cases/" + std::to_string(cid) + "/audit", nullptr, reviewer).second["audit"];
+    bool viewed_by_rita = false, changed_by_sam = false;
+    for (const auto& e : audit) {
+        viewed_by_rita = viewed_by_rita || (e["action"] == "case.view" && e["actor"] == "rita");
+        changed_by_sam = changed_by_sam || (e["actor"] == "sam" && e["action"] != "case.view");
+    }
+    EXPECT_TRUE(viewed_by_rita) << audit.dump();
+    EXPECT_TRUE(changed_by_sam) << audit.dump();
+    // Unknown tokens and ended sessions are refused (also from loopback).
+    EXPECT_EQ(call("GET", "/api/cases", nullptr, "not-a-token").first, 401);
+    EXPECT_EQ(call("POST", "/api/logout", json::object(), reviewer).first, 200);
+    EXPECT_EQ(call("GET", "/api/cases", nullptr, reviewer).first, 401);
+    // /api/status needs no login at all.
+    EXPECT_EQ(call("GET", "/api/status", nullptr, "not-a-token").first, 200);
+    // The WebSocket with a bad token is refused at the upgrade.
+    char err[256] = {0};
+    mg_connection* bad = mg_connect_websocket_client("127.0.0.1", port(), 0, err, sizeof err, "/api/ws?token=nope", nullptr,
+                                                     WsClient::on_data, WsClient::on_close, nullptr);
+    EXPECT_EQ(bad, nullptr);
+    if (bad) mg_close_connection(bad);
 }
 
 TEST(DaemonApi, CancelAQueuedJob) {

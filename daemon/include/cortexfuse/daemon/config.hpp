@@ -44,6 +44,9 @@ struct DaemonConfig {
     int push_queue_frames = 512;
     // state
     std::string state_dir;                   ///< "" -> $STATE_DIRECTORY or ~/.local/state/cortexfused
+    // case store and logins
+    std::string store_dir;                   ///< "" -> state_dir/store
+    int session_ttl_s = 43200;
     // data
     std::string t1_path, brain_mask_path;
     // tracker

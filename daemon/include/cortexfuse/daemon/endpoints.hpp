@@ -13,7 +13,9 @@
 // from any number of connection threads at once (the registry is read-only by then; handlers
 // must be thread-safe).
 #include <functional>
+#include <cstdint>
 #include <map>
+#include <optional>
 #include <nlohmann/json.hpp>
 #include <stdexcept>
 #include <string>
@@ -38,7 +40,10 @@ const char* access_name(Access a);
 struct Client {
     bool loopback = false;
     std::string address;  ///< remote IP as text
-    std::string role;     ///< "" without a session; "kiosk" for loopback
+    std::string role;     ///< "" without a session; "kiosk" for loopback without a token; else the session user's role
+    std::string user;     ///< the session's user name ("kiosk" for loopback without a token)
+    std::optional<std::int64_t> user_id;
+    std::string token;    ///< the bearer token presented, if any
 };
 
 struct Request {

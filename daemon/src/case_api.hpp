@@ -1,0 +1,28 @@
+#pragma once
+// The case store's endpoints (cases, logins, users, audit) over cf_db's CaseStore, and the
+// mapping of its errors to HTTP statuses. Registered by the daemon when the store opened.
+//
+// Thread contract: the handlers run on any connection thread; CaseStore serialises its own
+// calls (one SQLite connection behind a mutex).
+#include <filesystem>
+
+#include "cortexfuse/daemon/endpoints.hpp"
+#include "cortexfuse/db/case_store.hpp"
+
+namespace cf::daemon {
+
+/// StoreError -> ApiError (NotFound 404, Conflict 409, Invalid 400, Busy 503, others 500).
+[[noreturn]] void rethrow_store_error(const cf::db::StoreError& e);
+cf::db::Actor actor_of(const Client& c);
+/// A case folder named relative to `cases_root` ("phantom/case_0000"): parts of
+/// [A-Za-z0-9_.-], no '..', must hold a case.json. ApiError 400 / 404 naming `field`.
+std::filesystem::path case_dir_from_name(const std::filesystem::path& cases_root, const nlohmann::json& v, const std::string& field);
+nlohmann::json case_summary_json(const cf::db::CaseSummary& s);
+nlohmann::json case_record_json(const cf::db::CaseRecord& r);
+
+/// `cases_dir`: folders that POST /api/cases/import may name (relative, checked).
+/// `work_dir`: scratch space for staged imports.
+void register_case_endpoints(EndpointRegistry& reg, cf::db::CaseStore& store, const std::filesystem::path& cases_dir,
+                             const std::filesystem::path& work_dir, int session_ttl_s);
+
+}  // namespace cf::daemon
