@@ -3,6 +3,8 @@
 #include <gtest/gtest.h>
 #include <httplib.h>
 #include <signal.h>
+#include <sys/socket.h>
+#include <sys/un.h>
 #include <sys/wait.h>
 #include <unistd.h>
 
@@ -20,7 +22,7 @@ struct Proc {
     int out_fd = -1;  // stdout + stderr
 };
 
-Proc spawn(const std::vector<std::string>& args) {
+Proc spawn(const std::vector<std::string>& args, const std::vector<std::string>& extra_env = {}) {
     int p[2];
     if (pipe(p) != 0) return {};
     const pid_t pid = fork();
@@ -32,6 +34,7 @@ Proc spawn(const std::vector<std::string>& args) {
         std::vector<char*> argv;
         for (const auto& a : args) argv.push_back(const_cast<char*>(a.c_str()));
         argv.push_back(nullptr);
+        for (const auto& e : extra_env) putenv(const_cast<char*>(e.c_str()));
         execv(argv[0], argv.data());
         _exit(127);
     }
@@ -124,5 +127,54 @@ TEST(DaemonProcess, SigtermStopsCleanlyWithExitZero) {
     // The port is free again.
     auto r = c.Get("/api/status");
     EXPECT_FALSE(r);
+    fs::remove_all(dir);
+}
+
+TEST(DaemonProcess, TalksToSystemdThroughNotifySocket) {
+    // A datagram socket standing in for systemd's: READY=1 once up, WATCHDOG=1 pings at half
+    // WATCHDOG_USEC while healthy, STATUS= lines, STOPPING=1 on SIGTERM.
+    const auto dir = fs::temp_directory_path() / ("cf_daemon_notify_" + std::to_string(getpid()));
+    fs::create_directories(dir);
+    const std::string sock_path = (dir / "notify.sock").string();
+    const int s = socket(AF_UNIX, SOCK_DGRAM | SOCK_CLOEXEC, 0);
+    ASSERT_GE(s, 0);
+    sockaddr_un a{};
+    a.sun_family = AF_UNIX;
+    std::snprintf(a.sun_path, sizeof a.sun_path, "%s", sock_path.c_str());
+    ASSERT_EQ(bind(s, reinterpret_cast<sockaddr*>(&a), sizeof a), 0);
+    std::ofstream(dir / "c.json") << nlohmann::json{{"jobs", {{"phantom_cases_at_start", 0}}}, {"renderer", {{"kind", "cpu"}}}}.dump();
+    Proc p = spawn({CF_CORTEXFUSED, "--config", (dir / "c.json").string(), "--listen", "127.0.0.1:0", "--state-dir", (dir / "state").string()},
+                   {"NOTIFY_SOCKET=" + sock_path, "WATCHDOG_USEC=400000"});
+    ASSERT_GT(p.pid, 0);
+    std::vector<std::string> msgs;
+    auto receive_for = [&](double seconds) {
+        const auto end = std::chrono::steady_clock::now() + std::chrono::duration<double>(seconds);
+        while (std::chrono::steady_clock::now() < end) {
+            fd_set fs_;
+            FD_ZERO(&fs_);
+            FD_SET(s, &fs_);
+            timeval tv{0, 50000};
+            if (select(s + 1, &fs_, nullptr, nullptr, &tv) > 0) {
+                char buf[4096];
+                const ssize_t n = recv(s, buf, sizeof buf, 0);
+                if (n > 0) msgs.emplace_back(buf, std::size_t(n));
+            }
+        }
+    };
+    auto count = [&](const std::string& what) {
+        int n = 0;
+        for (const auto& m : msgs) n += m.find(what) != std::string::npos;
+        return n;
+    };
+    receive_for(4.0);
+    EXPECT_EQ(count("READY=1"), 1);
+    EXPECT_GE(count("WATCHDOG=1"), 5);  // every 0.2 s once up
+    EXPECT_GE(count("STATUS=tracker streaming"), 1);
+    kill(p.pid, SIGTERM);
+    receive_for(1.0);
+    EXPECT_EQ(wait_exit(p.pid, 20), 0);
+    EXPECT_EQ(count("STOPPING=1"), 1);
+    close(s);
+    close(p.out_fd);
     fs::remove_all(dir);
 }
