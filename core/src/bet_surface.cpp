@@ -140,11 +140,17 @@ void compute_stats(const float* v, const std::array<int, 3>& dims, const std::ar
     }
 }
 
-}  // namespace
+// Signed volume enclosed by a closed mesh (divergence theorem), mm^3; positive for outward normals.
+double enclosed_mm3(const Mesh& m) {
+    double v6 = 0;
+    for (const auto& tr : m.triangles)
+        v6 += dot(m.vertices_mm[size_t(tr[0])], cross(m.vertices_mm[size_t(tr[1])], m.vertices_mm[size_t(tr[2])]));
+    return v6 / 6.0;
+}
 
-Mesh bet_surface(const float* voxels, const std::array<int, 3>& dims, const std::array<double, 3>& spacing_mm,
-                 const HeadFrame& frame, const BetParams& p, BetStats& s, const TickFn& tick) {
-    compute_stats(voxels, dims, spacing_mm, frame, s);
+// One run of BET's surface evolution with fractional threshold f, from the sphere of the stats.
+Mesh evolve(const float* voxels, const std::array<int, 3>& dims, const std::array<double, 3>& spacing_mm,
+            const BetParams& p, double f, const BetStats& s, const TickFn& tick) {
     Mesh m = icosphere(p.subdivisions);
     for (auto& v : m.vertices_mm) v = add(s.cog_mm, mul(v, 0.5 * s.radius_mm));
     const size_t nv = m.vertices_mm.size();
@@ -209,15 +215,39 @@ Mesh bet_surface(const float* voxels, const std::array<int, 3>& dims, const std:
             }
             imin = std::max(s.t2, imin);
             imax = std::min(s.tm, imax);
-            const double tl = (imax - s.t2) * p.fractional_threshold + s.t2;
+            const double tl = (imax - s.t2) * f + s.t2;
             const double f3 = imax - s.t2 > 0 ? 2.0 * (imin - tl) / (imax - s.t2) : 0.0;
             const V3 u3 = mul(n, 0.05 * f3 * l);
             delta[v] = add(add(u1, u2), u3);
         }
         for (size_t v = 0; v < nv; ++v) m.vertices_mm[v] = add(m.vertices_mm[v], delta[v]);
     }
-    if (tick) tick(1.0);
     return m;
+}
+
+}  // namespace
+
+Mesh bet_surface(const float* voxels, const std::array<int, 3>& dims, const std::array<double, 3>& spacing_mm,
+                 const HeadFrame& frame, const BetParams& p, BetStats& s, const TickFn& tick) {
+    compute_stats(voxels, dims, spacing_mm, frame, s);
+    // The published default f = 0.5 passes a CSF/bone band that partial volume has made grey
+    // (thick slices: the sagittal DICOM series at 4.8 mm) and the surface ends on the scalp.
+    // Such a surface encloses more than any brain: BET's usual remedy, a higher f, is applied
+    // in steps until the enclosed volume is plausible (or f reaches fraction_max).
+    double f = p.fractional_threshold;
+    for (int attempt = 0;; ++attempt) {
+        const double f0 = double(attempt) / (attempt + 1.0), f1 = double(attempt + 1) / (attempt + 2.0);
+        Mesh m = evolve(voxels, dims, spacing_mm, p, f, s,
+                        [&](double x) { if (tick) tick(f0 + (f1 - f0) * x); });
+        const double ml = enclosed_mm3(m) / 1000.0;
+        s.fraction_used = f;
+        s.enclosed_ml = ml;
+        if (ml <= p.max_enclosed_ml || f + 1e-9 >= p.fraction_max) {
+            if (tick) tick(1.0);
+            return m;
+        }
+        f = std::min(p.fraction_max, f + p.fraction_step);
+    }
 }
 
 std::vector<uint8_t> fill_mesh(const Mesh& m, const std::array<int, 3>& dims, const std::array<double, 3>& sp) {

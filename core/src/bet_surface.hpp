@@ -17,6 +17,11 @@ struct BetParams {
     double search_in_mm = 20.0;         // BET's d1: inward search for the local minimum
     double radius_min_mm = 3.33;        // curvature smoothing: BET's r_min, r_max
     double radius_max_mm = 10.0;
+    /// A surface enclosing more than this (no brain does; the surface passed the skull) is evolved
+    /// again with f raised by fraction_step, up to fraction_max.
+    double max_enclosed_ml = 2300.0;
+    double fraction_step = 0.1;
+    double fraction_max = 0.8;
 };
 
 /// Head-size limit for the statistics: only head voxels within this height below the top of
@@ -32,6 +37,8 @@ struct BetStats {
     double t2 = 0, t98 = 0, t = 0, tm = 0;
     std::array<double, 3> cog_mm{0, 0, 0};  // in index-space millimetres (i * spacing)
     double radius_mm = 0;
+    double fraction_used = 0;  // f of the surface returned
+    double enclosed_ml = 0;    // volume the returned surface encloses
 };
 
 struct Mesh {

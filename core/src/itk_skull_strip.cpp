@@ -267,7 +267,6 @@ void check_config(const SkullStripConfig& c) {
         bad("max_brain_ml", c.max_brain_ml, "[min_brain_ml, 1e6]");
 }
 
-
 void skull_strip_mask(const Grid& grid, const float* voxels, const uint8_t* envelope, const uint8_t* support,
                       const SkullStripConfig& cfg,
                       const StepFn& step, std::vector<uint8_t>& mask, SkullStripReport& rep) {
@@ -469,10 +468,14 @@ void skull_strip_mask(const Grid& grid, const float* voxels, const uint8_t* enve
     seed = close(seed, box, cfg.close_mm);
     seed = fill_holes(seed);
 
-    // 9. Extra-axial CSF up to the inner table: T1 cannot tell CSF from bone by intensity alone,
-    //    but bone is darker than CSF, so take the voxels above a low (bone/CSF) threshold that lie
-    //    within csf_margin_mm of the envelope and are connected to it. The margin stops the growth
-    //    from leaking through the skull base into neck and face muscles.
+    // 9. Extra-axial CSF: the dark layer right outside the cortex. Take the voxels darker than
+    //    t_csf = csf + csf_split (gm - csf) that lie within csf_margin_mm of the envelope and are
+    //    connected to it; the grey band beyond (dura, partial volume with the diploe, the skull on
+    //    intensity-normalised scans) is brighter and stops the growth, the margin stops it in
+    //    dark bone and air. Measured (docs/skull-stripping.md): FreeSurfer's mask of mne_ecog holds
+    //    that dark CSF layer (4-5 mm over the convexity), Seg3D's mask of seg3d stops at the grey
+    //    band on the cortex; the former "bright enough to be CSF, not bone" rule took seg3d's grey
+    //    band and left mne_ecog's CSF out, the opposite of both references.
     step("intracranial CSF", 0.62);
     if (cfg.csf_margin_mm > 0) {
         rep.t_csf = t_csf;
@@ -480,7 +483,7 @@ void skull_strip_mask(const Grid& grid, const float* voxels, const uint8_t* enve
         {
             uint8_t* ip = ic->GetBufferPointer();
             const uint8_t* sp = seed->GetBufferPointer();
-            for (size_t i = 0; i < n; ++i) ip[i] = (sp[i] || (ip[i] && img[i] >= t_csf)) ? 1 : 0;
+            for (size_t i = 0; i < n; ++i) ip[i] = (sp[i] || (ip[i] && img[i] <= t_csf)) ? 1 : 0;
         }
         if (env) and_into(ic, env);
         step("intracranial CSF", 0.7);

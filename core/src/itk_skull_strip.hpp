@@ -13,7 +13,7 @@ namespace cf::itkb {
 struct SkullStripConfig {
     double background_frac = 0.1;
     double csf_gm_split = 0.25;
-    double csf_split = -0.6;
+    double csf_split = -0.3;
     double csf_margin_mm = 6.0;
     double bright_limit = 2.0;
     double erode_mm = 2.0;

@@ -49,8 +49,9 @@ struct SkullStripParams {
     /// Target brain: the CSF growth's reach beyond the tissue envelope (the thin CSF layer over the
     /// cortex that FreeSurfer's brain mask also holds). [0, 20]
     double brain_csf_margin_mm = 6.0;
-    /// Extra-axial CSF threshold, between bone (darkest) and CSF: csf + csf_split * (gm - csf). [-2, 1]
-    double csf_split = -0.6;
+    /// Extra-axial CSF: voxels next to the brain darker than csf + csf_split * (gm - csf) are CSF
+    /// (the brighter grey band beyond, dura and bone partial volume, is not). [-2, 1]
+    double csf_split = -0.3;
     /// Target intracranial only: how far beyond the brain envelope the CSF growth may reach (up to
     /// the inner table of the skull); also what stops it from leaking through the skull base. [0, 20]
     double csf_margin_mm = 8.0;
