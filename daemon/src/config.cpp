@@ -148,7 +148,8 @@ void check(const OptionSpec& s, const nlohmann::json& v, const std::string& wher
 }  // namespace
 
 std::string OptionSpec::range_text() const {
-    if (type == T::integer || type == T::number) return fmt_num(min) + ".." + fmt_num(max);
+    if (type == T::integer) return std::to_string(static_cast<long long>(min)) + ".." + std::to_string(static_cast<long long>(max));
+    if (type == T::number) return fmt_num(min) + ".." + fmt_num(max);
     if (type == T::string && !choices.empty()) {
         std::string r = "one of ";
         for (size_t i = 0; i < choices.size(); ++i) r += (i ? ", " : "") + choices[i];

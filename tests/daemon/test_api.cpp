@@ -532,3 +532,20 @@ TEST(DaemonApi, CancelAQueuedJob) {
     EXPECT_FALSE(fs::exists(g_state / "cases" / "extra_b"));
     for (const auto& e : fs::directory_iterator(g_state / "cases")) EXPECT_NE(e.path().filename().string().rfind(".tmp-", 0), 0u) << e.path();
 }
+
+TEST(DaemonApi, CameraCaptureReturnsThePhoto) {
+    auto c = client();
+    auto r = c.Post("/api/camera/capture", "", "application/json");
+    ASSERT_TRUE(r);
+    ASSERT_EQ(r->status, 200) << r->body;
+    EXPECT_EQ(r->get_header_value("Content-Type"), "image/jpeg");
+    const cv::Mat img = cv::imdecode(std::vector<uchar>(r->body.begin(), r->body.end()), cv::IMREAD_COLOR);
+    EXPECT_EQ(img.cols, 640);
+    EXPECT_EQ(img.rows, 480);
+    const json cam = get_json("/api/camera");
+    EXPECT_EQ(cam["state"], "open");
+    EXPECT_EQ(cam["counters"]["captures"], 1);
+    r = c.Get("/api/camera/capture");
+    ASSERT_TRUE(r);
+    EXPECT_EQ(r->status, 405);
+}
