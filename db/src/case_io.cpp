@@ -452,7 +452,7 @@ Plan plan_store_folder(const fs::path& root) {
     return p;
 }
 
-Plan plan_plain_folder(const fs::path& root) {
+Plan plan_plain_folder(const fs::path& root, const std::string& title_hint) {
     const std::string cjn = (root / "case.json").string();
     const json cj = read_json(root / "case.json", cjn);
     Fields f{cj, cjn};
@@ -461,7 +461,8 @@ Plan plan_plain_folder(const fs::path& root) {
     Plan p;
     p.source = "case.json";
     p.uid = random_hex(16);
-    std::string title = fs::absolute(root).lexically_normal().filename().string();
+    std::string title = title_hint;
+    if (title.empty()) title = fs::absolute(root).lexically_normal().filename().string();
     if (title.empty()) title = fs::absolute(root).lexically_normal().parent_path().filename().string();
     p.title = title.empty() ? std::string("imported case") : title.substr(0, 200);
     auto add_file = [&](const std::string& rel, const std::string& what) {
@@ -596,12 +597,14 @@ void CaseStore::export_case_zip(std::int64_t case_id, const fs::path& zip_path, 
 
 // ---- import ---------------------------------------------------------------------------------------
 
-std::int64_t CaseStore::import_case_folder(const fs::path& dir, const Actor& by) {
+std::int64_t CaseStore::import_case_folder(const fs::path& dir, const Actor& by) { return import_folder(dir, by, {}); }
+
+std::int64_t CaseStore::import_folder(const fs::path& dir, const Actor& by, const std::string& title_hint) {
     std::error_code ec;
     if (!fs::is_directory(dir, ec)) throw StoreError(K::NotFound, dir.string() + ": no such folder");
     Plan p;
     if (fs::exists(dir / "store.json", ec)) p = plan_store_folder(dir);
-    else if (fs::exists(dir / "case.json", ec)) p = plan_plain_folder(dir);
+    else if (fs::exists(dir / "case.json", ec)) p = plan_plain_folder(dir, title_hint);
     else throw StoreError(K::Invalid, dir.string() + ": holds neither store.json nor case.json");
 
     std::int64_t total = 0;
@@ -803,7 +806,9 @@ std::int64_t CaseStore::import_case_zip(const fs::path& zip_path, const Actor& b
                                                 "folder; nothing imported");
     }
     try {
-        return import_case_folder(root, by);
+        // A plain case folder is titled after its folder: the archive's top folder or its name.
+        const std::string title = root == tmp.p ? zip_path.stem().string() : root.filename().string();
+        return import_folder(root, by, title);
     } catch (const StoreError& e) {
         // Name the archive, not the temporary folder.
         std::string msg = e.what();

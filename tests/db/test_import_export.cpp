@@ -190,6 +190,13 @@ TEST_F(IoFixture, PlainCaseFolderIsImported) {
     EXPECT_EQ(c.landmarks->points.size(), 4u);
     EXPECT_EQ(c.landmarks->photo_id, c.photos[0].id);
     EXPECT_EQ(c.roi->roi, roi_json());
+    // The same folder zipped: titled after the archive.
+    auto entries = folder_entries(d);
+    make_zip(t.path / "from_zip.zip", entries);
+    const auto z = dst->get_case(dst->import_case_zip(t.path / "from_zip.zip"));
+    EXPECT_EQ(z.summary.title, "from_zip");
+    EXPECT_EQ(z.volumes[0].blob.sha256, c.volumes[0].blob.sha256);
+    EXPECT_NE(z.summary.uid, c.summary.uid);  // a plain folder has no uid: a new case each time
 }
 
 TEST_F(IoFixture, BadFoldersAreRefusedWithNothingStored) {

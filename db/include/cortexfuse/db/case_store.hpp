@@ -339,6 +339,7 @@ public:
 
 private:
     explicit CaseStore(std::unique_ptr<Impl> impl);
+    std::int64_t import_folder(const std::filesystem::path& dir, const Actor& by, const std::string& title_hint);
     std::unique_ptr<Impl> impl_;
 };
 
