@@ -25,7 +25,13 @@ void fail(sqlite3* db, int rc, const std::string& context) {
     using K = StoreError::Kind;
     K kind = K::Invalid;
     switch (primary) {
-        case SQLITE_CONSTRAINT: kind = K::Conflict; break;
+        case SQLITE_CONSTRAINT:
+            // UNIQUE / PRIMARY KEY and the keep-as-recorded triggers: a conflict with what is
+            // stored; CHECK / NOT NULL / FOREIGN KEY: a bad value that got past validation.
+            kind = (rc == SQLITE_CONSTRAINT_CHECK || rc == SQLITE_CONSTRAINT_NOTNULL || rc == SQLITE_CONSTRAINT_FOREIGNKEY)
+                       ? K::Invalid
+                       : K::Conflict;
+            break;
         case SQLITE_BUSY:
         case SQLITE_LOCKED: kind = K::Busy; break;
         case SQLITE_CORRUPT:

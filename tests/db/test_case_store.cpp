@@ -3,6 +3,7 @@
 #include <sqlite3.h>
 
 #include "db_test_util.hpp"
+#include "sqlite.hpp"
 
 using namespace cf::db;
 using namespace cfdbtest;
@@ -277,6 +278,20 @@ TEST_F(StoreFixture, AuditLogIsAppendOnly) {
     const auto all = s->audit_trail(std::nullopt);
     EXPECT_EQ(all[0].actor, "system");
     EXPECT_EQ(all.back().actor, "x");
+}
+
+TEST(DbSqlite, ConstraintFailuresMapToKinds) {
+    TempDir t;
+    sql::Db db((t.path / "c.sqlite").string());
+    db.exec("CREATE TABLE a (x INTEGER UNIQUE CHECK (x > 0)); "
+            "CREATE TABLE k (y INTEGER); CREATE TRIGGER k_no_delete BEFORE DELETE ON k BEGIN SELECT RAISE(ABORT, 'kept'); END; "
+            "INSERT INTO a VALUES (1); INSERT INTO k VALUES (1);", "setup");
+    expect_store_error([&] { db.prepare("INSERT INTO a VALUES (1)").context("row a 1").run(); }, StoreError::Kind::Conflict,
+                       "row a 1: UNIQUE constraint failed");
+    expect_store_error([&] { db.prepare("INSERT INTO a VALUES (-1)").context("row a -1").run(); }, StoreError::Kind::Invalid,
+                       "row a -1: CHECK constraint failed");
+    expect_store_error([&] { db.exec("DELETE FROM k", "deleting k"); }, StoreError::Kind::Conflict, "deleting k: kept");
+    expect_store_error([&] { db.exec("SELECT * FROM nope", "reading nope"); }, StoreError::Kind::Invalid, "no such table");
 }
 
 TEST_F(StoreFixture, CorruptBlobIsReportedByIntegrityCheckAndRead) {
