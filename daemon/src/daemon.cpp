@@ -1,7 +1,9 @@
 #include "cortexfuse/daemon/daemon.hpp"
 
 #include <cstdlib>
+#include <deque>
 #include <filesystem>
+#include <future>
 #include <mutex>
 #include <regex>
 #include <sstream>
@@ -42,31 +44,70 @@ std::string resolve_state_dir(const DaemonConfig& c) {
 
 namespace {
 
-/// The camera module: the configured backend, opened on first use; one capture at a time
-/// (the mutex is the "one thread at a time" of the Camera contract).
+/// The camera module: the configured backend, opened on first use, on the camera's own
+/// thread (the Camera contract: one thread at a time; and the simulated camera's scene building
+/// needs more stack than a connection thread has). Callers wait for their capture.
 class CameraModule {
 public:
-    explicit CameraModule(const DaemonConfig& c) : cfg_(c) {}
+    explicit CameraModule(const DaemonConfig& c) : cfg_(c) {
+        thread_ = std::thread([this] { loop(); });
+    }
+    ~CameraModule() { stop(); }
+    /// Ends the camera thread (closing the camera); later captures answer 503.
+    void stop() {
+        {
+            std::lock_guard lk(q_mu_);
+            stop_ = true;
+        }
+        q_cv_.notify_all();
+        if (thread_.joinable()) thread_.join();
+    }
     nlohmann::json status_json() const {
         std::lock_guard lk(mu_);
         nlohmann::json j{{"backend", cfg_.camera_backend}, {"device", cfg_.camera_device}, {"state", state_}};
         if (!error_.empty()) j["last_error"] = error_;
-        if (cam_) {
-            const auto s = cam_->stats();
-            const auto info = cam_->info();
-            j["model"] = info.model;
-            j["id"] = info.id;
-            j["counters"] = {{"captures", s.captures}, {"frames", s.frames}, {"errors", s.errors}, {"dropped", s.dropped}};
-            j["last_capture_ms"] = s.last_capture_ms;
+        if (!model_.empty()) {
+            j["model"] = model_;
+            j["id"] = id_;
+            j["counters"] = {{"captures", stats_.captures}, {"frames", stats_.frames}, {"errors", stats_.errors}, {"dropped", stats_.dropped}};
+            j["last_capture_ms"] = stats_.last_capture_ms;
         }
         return j;
     }
-    cf::camera::Photo capture(const CancelToken* cancel) {
-        std::lock_guard lk(mu_);
+    cf::camera::Photo capture() {
         if (cfg_.camera_backend == "none") throw ApiError(503, "unavailable", "camera: camera.backend is none");
+        std::packaged_task<cf::camera::Photo()> task([this] { return capture_on_thread(); });
+        auto fut = task.get_future();
+        {
+            std::lock_guard lk(q_mu_);
+            if (stop_) throw ApiError(503, "unavailable", "camera: the daemon is stopping");
+            queue_.push_back(std::move(task));
+        }
+        q_cv_.notify_all();
+        return fut.get();
+    }
+
+private:
+    void loop() {
+        for (;;) {
+            std::packaged_task<cf::camera::Photo()> task;
+            {
+                std::unique_lock lk(q_mu_);
+                q_cv_.wait(lk, [&] { return stop_ || !queue_.empty(); });
+                if (stop_) break;  // abandoned tasks answer broken_promise to their callers
+                task = std::move(queue_.front());
+                queue_.pop_front();
+            }
+            task();
+        }
+        queue_.clear();
+        cam_.reset();
+        backend_.reset();
+    }
+    cf::camera::Photo capture_on_thread() {
         try {
             if (!cam_) {
-                state_ = "opening";
+                set_state("opening");
                 cf::camera::SimCameraConfig sc;
                 sc.volume_path = cfg_.t1_path;
                 sc.mask_path = cfg_.brain_mask_path;
@@ -79,27 +120,41 @@ public:
                 }
                 cam_ = backend->open(id);
                 backend_ = std::move(backend);
+                const auto info = cam_->info();
+                std::lock_guard lk(mu_);
                 state_ = "open";
+                model_ = info.model;
+                id_ = info.id;
             }
-            Progress p;
-            p.cancel = cancel;
-            auto photo = cam_->capture(p);
+            auto photo = cam_->capture();
+            std::lock_guard lk(mu_);
+            stats_ = cam_->stats();
             error_.clear();
             return photo;
         } catch (const cf::camera::CameraError& e) {
+            std::lock_guard lk(mu_);
             error_ = e.what();
             if (!cam_) state_ = "failed";
+            else stats_ = cam_->stats();
             throw ApiError(503, "unavailable", e.what());
         }
     }
+    void set_state(const std::string& s) {
+        std::lock_guard lk(mu_);
+        state_ = s;
+    }
 
-private:
     DaemonConfig cfg_;
-    mutable std::mutex mu_;
-    std::string state_ = "closed";
-    std::string error_;
-    std::unique_ptr<cf::camera::Backend> backend_;
-    std::unique_ptr<cf::camera::Camera> cam_;
+    mutable std::mutex mu_;  // status fields
+    std::string state_ = "closed", error_, model_, id_;
+    cf::camera::CameraStats stats_;
+    std::unique_ptr<cf::camera::Backend> backend_;  // camera thread only
+    std::unique_ptr<cf::camera::Camera> cam_;       // camera thread only
+    std::mutex q_mu_;
+    std::condition_variable q_cv_;
+    std::deque<std::packaged_task<cf::camera::Photo()>> queue_;
+    bool stop_ = false;
+    std::thread thread_;
 };
 
 std::uint64_t parse_id(const Request& r) {
@@ -269,6 +324,7 @@ bool Daemon::stop() {
     if (!jobs_clean) log(LogLevel::warning, "jobs", "a job did not end within jobs.stop_timeout_ms; abandoned");
     d.tracker->stop();
     d.render->stop();
+    d.camera->stop();
     log(LogLevel::info, "daemon", "stopped");
     return jobs_clean;
 }
@@ -534,7 +590,7 @@ void Daemon::Impl::register_endpoints() {
                   [d, json_ok](const Request&) { return json_ok(d->camera->status_json()); }});
     registry.add({"POST", "/api/camera/capture", "camera.capture", Access::write, "Take a photo; answers the file as the camera delivered it (JPEG)",
                   [d](const Request&) {
-                      auto photo = d->camera->capture(nullptr);
+                      auto photo = d->camera->capture();
                       Response r = Response::binary(std::string(photo.bytes.begin(), photo.bytes.end()), photo.mime.empty() ? "image/jpeg" : photo.mime);
                       r.headers["X-Capture-Ms"] = std::to_string(photo.capture_ms);
                       return r;

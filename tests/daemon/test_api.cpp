@@ -244,7 +244,8 @@ TEST(DaemonApi, ErrorsAreJsonWithTheRightStatus) {
     ASSERT_TRUE(r);
     EXPECT_EQ(r->status, 400);
     // Nothing was queued by the refused requests.
-    for (const auto& job : get_json("/api/jobs")["jobs"]) EXPECT_EQ(job["kind"], "phantom");
+    const json all_jobs = get_json("/api/jobs");
+    for (const auto& job : all_jobs["jobs"]) EXPECT_EQ(job["kind"], "phantom");
 }
 
 TEST(DaemonApi, StaticFilesStayInTheUiFolder) {
