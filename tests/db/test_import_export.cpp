@@ -373,23 +373,23 @@ TEST_F(IoFixture, MutatedZipsNeverHalfImport) {
         }
         const fs::path p = t.path / ("m" + std::to_string(round) + ".zip");
         write_file(p, z);
-        auto fresh = CaseStore::open(t.path / ("cart-m" + std::to_string(round)), fast_options(clock));
+        // One receiving store for all (opening a store per round costs its fsyncs). After an
+        // intact import, a later intact one is refused as a Conflict (same uid): also a refusal.
+        const std::size_t cases_before = dst->list_cases().size();
         try {
-            const auto id = fresh->import_case_zip(p);
-            EXPECT_EQ(content(*fresh, id), expected) << p;
+            const auto id = dst->import_case_zip(p);
+            EXPECT_EQ(content(*dst, id), expected) << p;
             ++imported;
         } catch (const StoreError& e) {
             ++refused;
             EXPECT_NE(std::string(e.what()).find(p.string()), std::string::npos) << e.what();
-            EXPECT_TRUE(fresh->list_cases().empty()) << p;
+            EXPECT_EQ(dst->list_cases().size(), cases_before) << p;
         }
-        if (fs::is_directory(fresh->dir() / "tmp")) {
-            EXPECT_TRUE(fs::is_empty(fresh->dir() / "tmp")) << p;
+        if (fs::is_directory(dst->dir() / "tmp")) {
+            EXPECT_TRUE(fs::is_empty(dst->dir() / "tmp")) << p;
         }
-        EXPECT_TRUE(fresh->check_integrity().ok) << p;
-        fresh.reset();
-        fs::remove_all(t.path / ("cart-m" + std::to_string(round)));
     }
+    EXPECT_TRUE(dst->check_integrity().ok);
     std::printf("mutated zips: %d refused, %d imported intact\n", refused, imported);
     EXPECT_GT(refused, 40);
 }
