@@ -479,7 +479,11 @@ void skull_strip_mask(const Grid& grid, const float* voxels, const uint8_t* enve
     step("intracranial CSF", 0.62);
     if (cfg.csf_margin_mm > 0) {
         rep.t_csf = t_csf;
-        auto ic = morph(seed, box, cfg.csf_margin_mm);
+        // Thick slices (the erosion was raised to cut one-slice-thick bridges, see skull_strip.cpp):
+        // the extra erosion thins the cortex the reconstruction returns and partial volume greys
+        // the CSF layer, so the CSF reach grows by the extra erosion (2 mm is the default).
+        const double reach_mm = cfg.csf_margin_mm + std::max(0.0, cfg.erode_mm - 2.0);
+        auto ic = morph(seed, box, reach_mm);
         {
             uint8_t* ip = ic->GetBufferPointer();
             const uint8_t* sp = seed->GetBufferPointer();

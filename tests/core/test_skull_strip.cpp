@@ -94,6 +94,36 @@ TEST(SkullStrip, RealHeadAt2mm) {
     EXPECT_LT(info.brain_ml, 0.7 * info.head_ml);
 }
 
+TEST(SkullStrip, ThickSliceDicomSeriesStaysOffTheScalp) {
+    // The real sagittal T1 series (1 x 1 x 4.8 mm, neck and face in the field of view): at BET's
+    // published f = 0.5 the surface model passed the partial-volume-grey skull and ended on the
+    // scalp over the vertex (a 1984 mL "brain"); the surface must now enclose a plausible volume
+    // and the mask must be a brain-sized one.
+    const Volume v = load_volume(fs::path(CF_TEST_DATA_DIR) / "dicom_mr_sag");
+    SkullStripInfo info;
+    const LabelVolume mask = skull_strip(v, {}, nullptr, &info);
+    ASSERT_TRUE(mask.geom.same_grid(v.geom));
+    EXPECT_TRUE(info.envelope_used);
+    EXPECT_GT(info.working_spacing_mm, 0.0);
+    EXPECT_LT(info.envelope_ml, 2300.0);
+    EXPECT_GT(info.brain_ml, 1100.0);
+    EXPECT_LT(info.brain_ml, 1650.0);
+    // Nothing of the mask in the top 4 mm of the head (scalp and skull over the vertex).
+    const Eigen::Affine3d world = v.geom.world_from_index();
+    double top_head = -1e9, top_mask = -1e9;
+    for (int k = 0; k < v.geom.dims[2]; ++k)
+        for (int j = 0; j < v.geom.dims[1]; ++j)
+            for (int i = 0; i < v.geom.dims[0]; ++i) {
+                const size_t li = v.geom.linear(i, j, k);
+                const double s = (world * Eigen::Vector3d(i, j, k)).z();  // LPS: +S is superior
+                if (v.voxels[li] > info.t_background) top_head = std::max(top_head, s);
+                if (mask.voxels[li]) top_mask = std::max(top_mask, s);
+            }
+    RecordProperty("dicom_top_gap_mm", std::to_string(top_head - top_mask));
+    EXPECT_LT(top_mask, top_head - 4.0) << "mask reaches the scalp over the vertex (head top " << top_head
+                                        << " mm, mask top " << top_mask << " mm)";
+}
+
 TEST(SkullStrip, IntracranialTargetIsLargerThanBrain) {
     const Head& h = head_2mm();
     SkullStripParams p;
@@ -123,7 +153,8 @@ TEST(SkullStrip, AnisotropicScanGivesMaskOnItsOwnGrid) {
     const LabelVolume mask = skull_strip(thick, {}, nullptr, &info);
     ASSERT_TRUE(mask.geom.same_grid(thick.geom));
     EXPECT_GT(info.working_spacing_mm, 0.0);
-    EXPECT_GE(dice(mask, resample_nearest(h.reference, g)), 0.85);
+    EXPECT_GE(dice(mask, resample_nearest(h.reference, g)), 0.85)
+        << "brain " << info.brain_ml << " mL, surface " << info.envelope_ml << " mL";
 }
 
 TEST(SkullStrip, CheckImageIsWrittenAndGridMismatchRefused) {
