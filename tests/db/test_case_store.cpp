@@ -305,6 +305,14 @@ TEST_F(StoreFixture, CorruptBlobIsReportedByIntegrityCheckAndRead) {
     EXPECT_NE(rep.problems[0].find("volume " + std::to_string(v.id)), std::string::npos) << rep.problems[0];
     EXPECT_NE(rep.problems[0].find(v.blob.path.string()), std::string::npos) << rep.problems[0];
     expect_store_error([&] { s->read_blob(v.blob.sha256); }, StoreError::Kind::Corrupt, v.blob.path.string());
+    // A row whose blob is gone (half there) is reported too.
+    const auto reg = s->add_registration(c.id, sample_registration(v.id, s->add_photo_bytes(c.id, "p", "p.png", camera_json()).id, 1.1));
+    fs::remove(reg.results[0].blob.path);
+    const auto rep2 = s->check_integrity();
+    ASSERT_EQ(rep2.problems.size(), 2u);
+    EXPECT_NE(rep2.problems[1].find("result " + std::to_string(reg.results[0].id) + ": "), std::string::npos) << rep2.problems[1];
+    EXPECT_NE(rep2.problems[1].find("blob missing"), std::string::npos) << rep2.problems[1];
+    expect_store_error([&] { s->read_blob(reg.results[0].blob.sha256); }, StoreError::Kind::NotFound, "cannot open the blob");
 }
 
 TEST_F(StoreFixture, TwoStoresOnOneFolderSeeEachOther) {
