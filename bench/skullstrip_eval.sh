@@ -61,7 +61,8 @@ for c in "${cases[@]}"; do
       row=$(jq -c --arg head "$name" --arg target "$target" --arg ref_target "$ref_target" \
             --argjson rss_kb "$(cat "$OUT_DIR/.rss")" --arg png "$png" \
             '{head: $head, target: $target, dice: .dice, reference_target: (if .dice then $ref_target else null end),
-              brain_ml: .brain_ml, working_spacing_mm: .working_spacing_mm, peak_rss_mb: ($rss_kb / 1024),
+              brain_ml: .brain_ml, surface_model_ml: .surface_model_ml, working_spacing_mm: .working_spacing_mm,
+              peak_rss_mb: ($rss_kb / 1024),
               check_png: $png}' <<<"$out")
     done
     if [ ${#times[@]} -gt 0 ]; then

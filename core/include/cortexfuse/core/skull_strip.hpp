@@ -79,7 +79,7 @@ struct SkullStripInfo {
 /// Brain mask of a T1 head volume with skull (any intensity range: uint8, int16, scaled),
 /// on the grid of `t1`. Reports progress and honours cancellation between steps (throws
 /// cf::Cancelled). Throws cf::InputError when the volume holds no head or no brain-like region.
-/// Re-entrant. Takes ~2-5 s for a 1 mm 256^3 head on 2 cores.
+/// Re-entrant. Takes ~8 CPU-seconds for a 1 mm 256^3 head (4-8 s on 2 idle cores).
 LabelVolume skull_strip(const Volume& t1, const SkullStripParams& p = {}, const Progress* progress = nullptr,
                         SkullStripInfo* info = nullptr);
 
