@@ -319,7 +319,8 @@ bool Daemon::stop() {
     }
     d.monitor_cv.notify_all();
     if (d.monitor.joinable()) d.monitor.join();
-    d.http->stop();  // no new requests; WebSockets closed
+    d.jobs->request_stop();  // cancel now: the jobs wind down while the server stops
+    d.http->stop();          // no new requests; WebSockets closed
     const bool jobs_clean = d.jobs->stop(std::chrono::milliseconds(d.cfg.stop_timeout_ms));
     if (!jobs_clean) log(LogLevel::warning, "jobs", "a job did not end within jobs.stop_timeout_ms; abandoned");
     d.tracker->stop();

@@ -108,11 +108,11 @@ void JobQueue::start() {
     }
 }
 
-bool JobQueue::stop(std::chrono::milliseconds timeout) {
+void JobQueue::request_stop() {
     std::vector<JobInfo> dropped;
     {
         std::unique_lock lk(mu_);
-        if (stopping_ && !started_) return true;
+        if (stopping_) return;
         stopping_ = true;
         for (auto& [id, ctx] : running_) {
             ctx->token_.cancel();
@@ -131,6 +131,14 @@ bool JobQueue::stop(std::chrono::milliseconds timeout) {
     }
     cv_.notify_all();
     for (const auto& j : dropped) emit(j);
+}
+
+bool JobQueue::stop(std::chrono::milliseconds timeout) {
+    {
+        std::lock_guard lk(mu_);
+        if (stopping_ && !started_) return true;
+    }
+    request_stop();
     std::unique_lock lk(mu_);
     const bool all_done = cv_.wait_for(lk, timeout, [&] {
         for (auto& [n, w] : workers_)

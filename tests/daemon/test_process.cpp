@@ -115,6 +115,15 @@ TEST(DaemonProcess, SigtermStopsCleanlyWithExitZero) {
         if (!streaming) std::this_thread::sleep_for(std::chrono::milliseconds(100));
     }
     EXPECT_TRUE(streaming);
+    // A job running when the signal comes is cancelled and leaves nothing half-written.
+    auto job = c.Post("/api/jobs", R"({"kind": "phantom", "params": {"n": 3, "folder": "late"}})", "application/json");
+    ASSERT_TRUE(job);
+    EXPECT_EQ(job->status, 202) << job->body;
+    for (int i = 0; i < 50; ++i) {
+        auto r = c.Get("/api/jobs/1");
+        if (r && nlohmann::json::parse(r->body)["state"] == "running") break;
+        std::this_thread::sleep_for(std::chrono::milliseconds(20));
+    }
     const auto t0 = std::chrono::steady_clock::now();
     kill(p.pid, SIGTERM);
     const int code = wait_exit(p.pid, 20);
@@ -124,6 +133,9 @@ TEST(DaemonProcess, SigtermStopsCleanlyWithExitZero) {
     EXPECT_EQ(code, 0) << out;
     EXPECT_LT(stop_s, 10);
     EXPECT_NE(out.find("daemon: stopped"), std::string::npos) << out;
+    EXPECT_NE(out.find("job 1 (phantom) cancelled"), std::string::npos) << out;
+    EXPECT_FALSE(fs::exists(dir / "state" / "cases" / "late"));
+    for (const auto& e : fs::directory_iterator(dir / "state" / "cases")) ADD_FAILURE() << "left behind: " << e.path();
     // The port is free again.
     auto r = c.Get("/api/status");
     EXPECT_FALSE(r);

@@ -96,6 +96,8 @@ public:
     /// Cancels all, waits up to `timeout` for running jobs to end; returns false when one
     /// did not (its thread is then left detached: the process is about to exit).
     bool stop(std::chrono::milliseconds timeout);
+    /// The first half of stop(): refuse new jobs, cancel queued and running ones; returns at once.
+    void request_stop();
 
     /// Throws ApiError 400 for an unknown kind or bad params, 503 after stop().
     std::uint64_t submit(const std::string& kind, const nlohmann::json& params);
