@@ -3,6 +3,7 @@
 #include <gtest/gtest.h>
 #include <httplib.h>
 #include <signal.h>
+#include <netinet/in.h>
 #include <sys/socket.h>
 #include <sys/un.h>
 #include <sys/wait.h>
@@ -188,5 +189,26 @@ TEST(DaemonProcess, TalksToSystemdThroughNotifySocket) {
     EXPECT_EQ(count("STOPPING=1"), 1);
     close(s);
     close(p.out_fd);
+    fs::remove_all(dir);
+}
+
+TEST(DaemonProcess, PortInUseExitsOneNamingTheAddress) {
+    const int s = socket(AF_INET, SOCK_STREAM | SOCK_CLOEXEC, 0);
+    ASSERT_GE(s, 0);
+    sockaddr_in a{};
+    a.sin_family = AF_INET;
+    a.sin_addr.s_addr = htonl(INADDR_LOOPBACK);
+    ASSERT_EQ(bind(s, reinterpret_cast<sockaddr*>(&a), sizeof a), 0);
+    ASSERT_EQ(listen(s, 1), 0);
+    socklen_t len = sizeof a;
+    getsockname(s, reinterpret_cast<sockaddr*>(&a), &len);
+    const std::string listen_at = "127.0.0.1:" + std::to_string(ntohs(a.sin_port));
+    const auto dir = fs::temp_directory_path() / ("cf_daemon_busy_" + std::to_string(getpid()));
+    Proc p = spawn({CF_CORTEXFUSED, "--listen", listen_at, "--state-dir", (dir / "state").string()});
+    const std::string out = read_until(p.out_fd, "cannot start", 20);
+    EXPECT_EQ(wait_exit(p.pid, 20), 1) << out;
+    EXPECT_NE(out.find("http.listen " + listen_at), std::string::npos) << out;
+    close(p.out_fd);
+    close(s);
     fs::remove_all(dir);
 }
