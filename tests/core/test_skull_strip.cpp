@@ -90,7 +90,9 @@ TEST(SkullStrip, RealHeadAt2mm) {
     SkullStripInfo info;
     const LabelVolume mask = skull_strip(h.t1, {}, nullptr, &info);
     ASSERT_TRUE(mask.geom.same_grid(h.t1.geom));
-    EXPECT_GE(dice(mask, h.reference), 0.88) << "brain " << info.brain_ml << " mL";
+    const double d = dice(mask, h.reference);
+    RecordProperty("dice_2mm", std::to_string(d));
+    EXPECT_GE(d, 0.90) << "brain " << info.brain_ml << " mL";  // measured 0.914
     EXPECT_LT(info.brain_ml, 0.7 * info.head_ml);
 }
 
