@@ -163,6 +163,20 @@ void HttpServer::stop() {
     }
     q_cv_.notify_all();
     if (push_thread_.joinable()) push_thread_.join();
+    // Clients whose close handler civetweb did not run: end their writers (no writes follow).
+    std::map<const mg_connection*, std::shared_ptr<WsClient>> left;
+    {
+        std::lock_guard lk(clients_mu_);
+        left.swap(clients_);
+    }
+    for (auto& [c, w] : left) {
+        {
+            std::lock_guard lk(w->mu);
+            w->closing = true;
+        }
+        w->cv.notify_all();
+        if (w->writer.joinable()) w->writer.join();
+    }
 }
 
 Client HttpServer::client_of(const mg_connection* conn) const {
@@ -306,17 +320,56 @@ int HttpServer::ws_connect(const mg_connection* conn) {
 }
 
 void HttpServer::ws_ready(mg_connection* conn) {
-    WsClient w;
-    w.conn = conn;
-    w.client = client_of(conn);
-    w.tracker_hz = cfg_.push_default_tracker_hz;
+    auto w = std::make_shared<WsClient>();
+    w->conn = conn;
+    w->client = client_of(conn);
+    w->tracker_hz = cfg_.push_default_tracker_hz;
+    WsClient* wp = w.get();
+    w->writer = std::thread([this, wp] { writer_loop(*wp); });
     std::lock_guard lk(clients_mu_);
-    clients_[conn] = w;
+    clients_[conn] = std::move(w);
 }
 
 void HttpServer::ws_close(const mg_connection* conn) {
-    std::lock_guard lk(clients_mu_);
-    clients_.erase(conn);
+    std::shared_ptr<WsClient> w;
+    {
+        std::lock_guard lk(clients_mu_);
+        auto it = clients_.find(conn);
+        if (it == clients_.end()) return;
+        w = it->second;
+        clients_.erase(it);
+    }
+    {
+        std::lock_guard lk(w->mu);
+        w->closing = true;
+    }
+    w->cv.notify_all();
+    // The connection stays valid until this handler returns, so the writer must be done first.
+    if (w->writer.joinable()) w->writer.join();
+}
+
+void HttpServer::writer_loop(WsClient& w) {
+    for (;;) {
+        std::shared_ptr<const std::string> m;
+        {
+            std::unique_lock lk(w.mu);
+            w.cv.wait(lk, [&] { return w.closing || !w.out.empty(); });
+            if (w.closing) return;
+            m = std::move(w.out.front());
+            w.out.pop_front();
+        }
+        const int n = mg_websocket_write(w.conn, MG_WEBSOCKET_OPCODE_TEXT, m->data(), m->size());
+        std::unique_lock lk(w.mu);
+        if (n > 0) {
+            ++w.sent;
+            continue;
+        }
+        // The connection is going away: drop what is queued and wait for the close handler.
+        w.broken = true;
+        w.out.clear();
+        w.cv.wait(lk, [&] { return w.closing; });
+        return;
+    }
 }
 
 int HttpServer::ws_data(mg_connection* conn, int flags, char* data, std::size_t len) {
@@ -355,7 +408,7 @@ std::string HttpServer::handle_rpc_text(mg_connection* conn, const char* data, s
             std::lock_guard lk(clients_mu_);
             auto it = clients_.find(conn);
             if (it == clients_.end()) throw ApiError(409, "conflict", "push.subscribe: connection not ready");
-            WsClient& w = it->second;
+            WsClient& w = *it->second;
             if (params.is_object() && params.contains("tracker_hz")) {
                 const auto& h = params["tracker_hz"];
                 if (!h.is_number() || h.get<double>() < 0 || h.get<double>() > 1000)
@@ -407,7 +460,10 @@ std::string HttpServer::handle_rpc_text(mg_connection* conn, const char* data, s
 }
 
 void HttpServer::publish(const std::string& topic, const std::string& method, const nlohmann::json& params, std::int64_t t_ns) {
-    Message m{topic, nlohmann::json{{"jsonrpc", "2.0"}, {"method", method}, {"params", params}}.dump(-1, ' ', false, nlohmann::json::error_handler_t::replace), t_ns};
+    Message m{topic,
+              std::make_shared<const std::string>(
+                  nlohmann::json{{"jsonrpc", "2.0"}, {"method", method}, {"params", params}}.dump(-1, ' ', false, nlohmann::json::error_handler_t::replace)),
+              t_ns};
     {
         std::lock_guard lk(q_mu_);
         if (q_stop_) return;
@@ -431,10 +487,12 @@ void HttpServer::push_loop() {
             queue_.pop_front();
         }
         std::lock_guard lk(clients_mu_);
-        for (auto& [c, w] : clients_) {
+        for (auto& [c, wp] : clients_) {
+            WsClient& w = *wp;
             if (m.topic == "tracker") {
                 if (!w.tracker) continue;
                 if (w.tracker_hz > 0 && w.last_tracker_ns != 0 && double(m.t_ns - w.last_tracker_ns) < 0.8e9 / w.tracker_hz) {
+                    std::lock_guard l2(w.mu);
                     ++w.skipped;
                     continue;
                 }
@@ -442,9 +500,16 @@ void HttpServer::push_loop() {
             } else if ((m.topic == "jobs" && !w.jobs) || (m.topic == "status" && !w.status)) {
                 continue;
             }
-            // A slow client holds this thread (civetweb has no non-blocking write); the
-            // queue then drops its oldest messages, counted in status().
-            if (mg_websocket_write(w.conn, MG_WEBSOCKET_OPCODE_TEXT, m.text.data(), m.text.size()) > 0) ++w.sent;
+            {
+                std::lock_guard l2(w.mu);
+                if (w.broken || w.closing) continue;
+                w.out.push_back(m.text);  // shared: serialised once for all clients
+                while (w.out.size() > std::size_t(cfg_.push_queue_frames)) {
+                    w.out.pop_front();
+                    ++w.dropped;
+                }
+            }
+            w.cv.notify_one();
         }
     }
     push_alive_ = false;
@@ -454,8 +519,11 @@ nlohmann::json HttpServer::status_json() const {
     nlohmann::json clients = nlohmann::json::array();
     {
         std::lock_guard lk(clients_mu_);
-        for (const auto& [c, w] : clients_)
-            clients.push_back({{"address", w.client.address}, {"tracker_hz", w.tracker_hz}, {"sent", w.sent}, {"skipped", w.skipped}});
+        for (const auto& [c, wp] : clients_) {
+            std::lock_guard l2(wp->mu);
+            clients.push_back({{"address", wp->client.address}, {"tracker_hz", wp->tracker_hz}, {"sent", wp->sent}, {"skipped", wp->skipped},
+                               {"queued", wp->out.size()}, {"dropped", wp->dropped}});
+        }
     }
     std::uint64_t dropped;
     std::size_t queued;

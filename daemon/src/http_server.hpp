@@ -9,8 +9,10 @@
 // Thread contract: civetweb's connection threads (http.threads of them) call the registry
 // concurrently. One push thread owns the outgoing notification queue and writes to every
 // WebSocket client (mg_websocket_write locks each connection, so replies written by a
-// connection thread and notifications never interleave within a frame). publish_*() may be
-// called from any thread and only enqueue (the tracker's driver thread calls it per frame).
+// connection thread and notifications never interleave within a frame). Each WebSocket client
+// has a writer thread: the push thread only filters and queues per client, so a slow client
+// never holds up the others. publish() may be called from any thread and only enqueues (the
+// tracker's driver thread calls it per frame).
 #include <atomic>
 #include <condition_variable>
 #include <cstdint>
@@ -19,6 +21,7 @@
 #include <map>
 #include <memory>
 #include <mutex>
+#include <condition_variable>
 #include <nlohmann/json.hpp>
 #include <string>
 #include <thread>
@@ -59,16 +62,26 @@ public:
     void ws_close(const mg_connection* conn);
 
 private:
+    /// One WebSocket client. Its own writer thread sends its notifications, so a client that
+    /// reads slowly (a review workstation on a slow link) delays only itself; its queue keeps
+    /// the newest `push.queue_frames` messages and counts what it drops.
     struct WsClient {
         mg_connection* conn = nullptr;
         Client client;
-        double tracker_hz = 30;
-        std::int64_t last_tracker_ns = 0;
-        bool tracker = true, jobs = true, status = true;
-        std::uint64_t sent = 0, skipped = 0;
+        double tracker_hz = 30;                // guarded by clients_mu_
+        std::int64_t last_tracker_ns = 0;      // push thread only
+        bool tracker = true, jobs = true, status = true;  // guarded by clients_mu_
+        std::mutex mu;                         // guards the fields below
+        std::condition_variable cv;
+        std::deque<std::shared_ptr<const std::string>> out;
+        bool closing = false, broken = false;
+        std::uint64_t sent = 0, skipped = 0, dropped = 0;
+        std::thread writer;
     };
+    void writer_loop(WsClient& w);
     struct Message {
-        std::string topic, text;
+        std::string topic;
+        std::shared_ptr<const std::string> text;
         std::int64_t t_ns = 0;
     };
     Client client_of(const mg_connection* conn) const;
@@ -83,7 +96,7 @@ private:
     int port_ = 0;
 
     mutable std::mutex clients_mu_;
-    std::map<const mg_connection*, WsClient> clients_;
+    std::map<const mg_connection*, std::shared_ptr<WsClient>> clients_;
 
     mutable std::mutex q_mu_;
     std::condition_variable q_cv_;
