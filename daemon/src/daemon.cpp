@@ -319,13 +319,19 @@ bool Daemon::stop() {
     }
     d.monitor_cv.notify_all();
     if (d.monitor.joinable()) d.monitor.join();
+    const std::int64_t t0 = steady_ns();
+    auto step = [&](const char* what) { log(LogLevel::debug, "daemon", std::string(what) + " at " + std::to_string((steady_ns() - t0) / 1000000) + " ms"); };
     d.jobs->request_stop();  // cancel now: the jobs wind down while the server stops
     d.http->stop();          // no new requests; WebSockets closed
+    step("http stopped");
     const bool jobs_clean = d.jobs->stop(std::chrono::milliseconds(d.cfg.stop_timeout_ms));
     if (!jobs_clean) log(LogLevel::warning, "jobs", "a job did not end within jobs.stop_timeout_ms; abandoned");
+    step("jobs stopped");
     d.tracker->stop();
+    step("tracker stopped");
     d.render->stop();
     d.camera->stop();
+    step("render and camera stopped");
     log(LogLevel::info, "daemon", "stopped");
     return jobs_clean;
 }
