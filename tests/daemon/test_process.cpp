@@ -3,6 +3,8 @@
 #include <gtest/gtest.h>
 #include <httplib.h>
 #include <signal.h>
+#include <arpa/inet.h>
+#include <ifaddrs.h>
 #include <netinet/in.h>
 #include <sys/socket.h>
 #include <sys/un.h>
@@ -210,5 +212,59 @@ TEST(DaemonProcess, PortInUseExitsOneNamingTheAddress) {
     EXPECT_NE(out.find("http.listen " + listen_at), std::string::npos) << out;
     close(p.out_fd);
     close(s);
+    fs::remove_all(dir);
+}
+
+TEST(DaemonProcess, OtherHostsNeedALogin) {
+    // A non-loopback address of this machine stands in for a review workstation.
+    std::string host_ip;
+    ifaddrs* ifs = nullptr;
+    if (getifaddrs(&ifs) == 0) {
+        for (ifaddrs* i = ifs; i && host_ip.empty(); i = i->ifa_next) {
+            if (!i->ifa_addr || i->ifa_addr->sa_family != AF_INET) continue;
+            char buf[INET_ADDRSTRLEN];
+            inet_ntop(AF_INET, &reinterpret_cast<sockaddr_in*>(i->ifa_addr)->sin_addr, buf, sizeof buf);
+            if (std::string(buf).rfind("127.", 0) != 0) host_ip = buf;
+        }
+        freeifaddrs(ifs);
+    }
+    if (host_ip.empty()) GTEST_SKIP() << "no non-loopback IPv4 address on this machine";
+    const auto dir = fs::temp_directory_path() / ("cf_daemon_remote_" + std::to_string(getpid()));
+    fs::create_directories(dir);
+    std::ofstream(dir / "c.json") << nlohmann::json{{"jobs", {{"phantom_cases_at_start", 0}}}, {"tracker", {{"enabled", false}}}, {"renderer", {{"kind", "cpu"}}}}.dump();
+    Proc p = spawn({CF_CORTEXFUSED, "--config", (dir / "c.json").string(), "--listen", "0.0.0.0:0", "--state-dir", (dir / "state").string()});
+    std::string out = read_until(p.out_fd, "/\n", 30);
+    const auto at = out.find("listening on http://0.0.0.0:");
+    ASSERT_NE(at, std::string::npos) << out;
+    const int port = std::stoi(out.substr(at + std::string("listening on http://0.0.0.0:").size()));
+    httplib::Client kiosk("127.0.0.1", port), remote(host_ip, port);
+    // The kiosk (loopback) creates a reviewer.
+    auto r = kiosk.Post("/api/users", R"({"name": "rev", "password": "review-only", "role": "reviewer"})", "application/json");
+    ASSERT_TRUE(r);
+    ASSERT_EQ(r->status, 201) << r->body;
+    // From the other address: status is open, the rest needs a session.
+    r = remote.Get("/api/status");
+    ASSERT_TRUE(r) << host_ip;
+    EXPECT_EQ(r->status, 200);
+    r = remote.Get("/api/cases");
+    ASSERT_TRUE(r);
+    EXPECT_EQ(r->status, 401) << r->body;
+    r = remote.Post("/api/cases", R"({"title": "from afar"})", "application/json");
+    ASSERT_TRUE(r);
+    EXPECT_EQ(r->status, 401);
+    r = remote.Post("/api/login", R"({"name": "rev", "password": "review-only"})", "application/json");
+    ASSERT_TRUE(r);
+    ASSERT_EQ(r->status, 200) << r->body;
+    const std::string token = nlohmann::json::parse(r->body)["token"];
+    httplib::Headers h{{"Authorization", "Bearer " + token}};
+    r = remote.Get("/api/cases", h);
+    ASSERT_TRUE(r);
+    EXPECT_EQ(r->status, 200) << r->body;
+    r = remote.Post("/api/cases", h, R"({"title": "from afar"})", "application/json");
+    ASSERT_TRUE(r);
+    EXPECT_EQ(r->status, 403) << r->body;
+    kill(p.pid, SIGTERM);
+    EXPECT_EQ(wait_exit(p.pid, 20), 0);
+    close(p.out_fd);
     fs::remove_all(dir);
 }
