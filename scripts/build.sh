@@ -17,3 +17,21 @@ case "$kind" in
 esac
 dir=build; [ "$kind" = asan ] && dir=build-asan
 ninja -C "$dir" -j"$(nproc)"
+
+# The web UI (ui/, served by cortexfused at /): npm ci when the lock file changed or
+# node_modules is missing, then npm run build into ui/dist. A failed UI build does not fail the
+# C++ build; it removes ui/dist so the UI tests (ctest -L ui) fail and say so.
+if command -v npm >/dev/null 2>&1; then
+  (
+    cd ui || exit 1
+    stamp=node_modules/.cf-lock.sha256
+    want=$(sha256sum package-lock.json | cut -d' ' -f1)
+    if [ ! -d node_modules ] || [ "$(cat "$stamp" 2>/dev/null)" != "$want" ]; then
+      npm ci --no-audit --no-fund || exit 1
+      echo "$want" > "$stamp"
+    fi
+    npm run build || exit 1
+  ) || { echo "build: the web UI build failed (ui/); the UI tests will fail" >&2; rm -rf ui/dist; }
+else
+  echo "build: npm not found, the web UI (ui/) is not built (scripts/setup.sh installs it)" >&2
+fi

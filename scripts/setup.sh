@@ -16,6 +16,7 @@ PACKAGES=(
   ccache
   libcivetweb-dev libcivetweb1 libcpp-httplib-dev libsystemd-dev systemd
   libsqlite3-dev sqlite3 libsodium-dev libzip-dev
+  chromium
 )
 missing=()
 for p in "${PACKAGES[@]}"; do
@@ -26,4 +27,12 @@ if ((${#missing[@]})); then
   SUDO=""; [ "$(id -u)" = 0 ] || SUDO=sudo
   $SUDO apt-get update -q
   DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -q --no-install-recommends "${missing[@]}"
+fi
+# The web UI (ui/) builds with node + npm; Debian 12's nodejs 18 / npm 9 are enough (Vite 6).
+# Only when there is no node at all, so a newer node already on the machine is left alone.
+if ! command -v node >/dev/null 2>&1 || ! command -v npm >/dev/null 2>&1; then
+  echo "setup: installing nodejs npm" >&2
+  SUDO=""; [ "$(id -u)" = 0 ] || SUDO=sudo
+  $SUDO apt-get update -q
+  DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -q --no-install-recommends nodejs npm
 fi

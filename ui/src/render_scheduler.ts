@@ -1,0 +1,96 @@
+// Re-rendering while the user drags: a small picture at once, the full one when the finger
+// rests (issue 7: a new picture within 150 ms, refined after). One request in flight at a time;
+// only the newest wanted view is kept, older answers are dropped.
+
+export interface Size { width: number; height: number }
+
+/** The full and preview sizes for a view element of w x h CSS px (dpr: device pixel ratio),
+ *  each side within [16, max]; the preview is `previewScale` of the full size. */
+export function renderSizes(w: number, h: number, dpr: number, max: Size, previewScale = 0.25): { full: Size; preview: Size } {
+  const clamp = (v: number, hi: number) => Math.max(16, Math.min(hi, Math.round(v)));
+  let fw = w * Math.max(1, dpr), fh = h * Math.max(1, dpr);
+  const k = Math.min(1, max.width / fw, max.height / fh); // keep the aspect when clamping
+  fw *= k; fh *= k;
+  const full = { width: clamp(fw, max.width), height: clamp(fh, max.height) };
+  const preview = { width: clamp(full.width * previewScale, max.width), height: clamp(full.height * previewScale, max.height) };
+  return { full, preview };
+}
+
+export interface Timers {
+  set: (fn: () => void, ms: number) => unknown;
+  clear: (handle: unknown) => void;
+}
+
+export interface SchedulerOptions<V, R> {
+  /** Renders view `v` at `size`; the scheduler never has two of these running. */
+  render: (v: V, size: Size) => Promise<R>;
+  onImage: (r: R, v: V, size: Size, full: boolean) => void;
+  onError: (e: unknown) => void;
+  sizes: () => { full: Size; preview: Size };
+  /** Rest time after the last change before the full-size render. */
+  settleMs?: number;
+  timers?: Timers;
+}
+
+export class RenderScheduler<V> {
+  private wanted: { v: V; full: boolean; gen: number } | null = null;
+  private busy = false;
+  private gen = 0;
+  private shownGen = -1;
+  private settle: unknown = null;
+  private readonly timers: Timers;
+  private readonly settleMs: number;
+
+  constructor(private readonly o: SchedulerOptions<V, unknown>) {
+    this.timers = o.timers ?? { set: (fn, ms) => setTimeout(fn, ms), clear: (h) => clearTimeout(h as number) };
+    this.settleMs = o.settleMs ?? 200;
+  }
+
+  /** The view changed during a gesture: a preview now, the full size once it rests. */
+  interactive(v: V): void {
+    const gen = ++this.gen;
+    this.want({ v, full: false, gen });
+    if (this.settle !== null) this.timers.clear(this.settle);
+    this.settle = this.timers.set(() => {
+      this.settle = null;
+      if (this.gen === gen) this.want({ v, full: true, gen });
+    }, this.settleMs);
+  }
+
+  /** The view changed by a button: straight to full size. */
+  now(v: V): void {
+    if (this.settle !== null) { this.timers.clear(this.settle); this.settle = null; }
+    this.want({ v, full: true, gen: ++this.gen });
+  }
+
+  get inFlight(): boolean {
+    return this.busy;
+  }
+
+  private want(w: { v: V; full: boolean; gen: number }): void {
+    this.wanted = w;
+    this.pump();
+  }
+
+  private pump(): void {
+    if (this.busy || !this.wanted) return;
+    const w = this.wanted;
+    this.wanted = null;
+    const sizes = this.o.sizes();
+    const size = w.full ? sizes.full : sizes.preview;
+    this.busy = true;
+    this.o.render(w.v, size).then(
+      (r) => {
+        // Drop an answer older than what is shown (a full picture is never replaced by an older preview).
+        if (w.gen > this.shownGen || (w.gen === this.shownGen && w.full)) {
+          this.shownGen = w.gen;
+          this.o.onImage(r, w.v, size, w.full);
+        }
+      },
+      (e) => this.o.onError(e),
+    ).finally(() => {
+      this.busy = false;
+      this.pump();
+    });
+  }
+}

@@ -1,0 +1,62 @@
+import { describe, expect, it } from "vitest";
+import { ApiError, apiJson, apiRender, errorFromAnswer, plainMessage, type FetchLike } from "../src/api";
+
+const answer = (status: number, body: string, headers: Record<string, string> = {}): FetchLike =>
+  async () => new Response(body, { status, headers });
+
+describe("api client", () => {
+  it("returns the parsed JSON of a 2xx answer and sends the body as JSON", async () => {
+    let seen: RequestInit | undefined;
+    const f: FetchLike = async (_u, init) => { seen = init; return new Response('{"id":3,"title":"x"}', { status: 201 }); };
+    const r = await apiJson<{ id: number }>("POST", "/api/cases", { title: "x" }, f);
+    expect(r.id).toBe(3);
+    expect(seen?.method).toBe("POST");
+    expect(seen?.body).toBe('{"title":"x"}');
+    expect((seen?.headers as Record<string, string>)["Content-Type"]).toBe("application/json");
+  });
+
+  it("turns the daemon's {error:{code,message}} into an ApiError with its words", async () => {
+    const f = answer(400, '{"error":{"code":"bad_request","status":400,"message":"title: must not be empty"}}');
+    const e: any = await apiJson("POST", "/api/cases", { title: "" }, f).catch((x: any) => x);
+    expect(e).toBeInstanceOf(ApiError);
+    expect(e.status).toBe(400);
+    expect(e.code).toBe("bad_request");
+    expect(plainMessage(e)).toBe("title: must not be empty");
+  });
+
+  it("explains an answer without a JSON error body in plain words", () => {
+    const e = errorFromAnswer("GET", "/api/cases/9", 404, "<html>not found</html>");
+    expect(e.code).toBe("http_404");
+    expect(e.message).toBe("GET /api/cases/9: it does not exist (HTTP 404).");
+    expect(errorFromAnswer("POST", "/api/render", 503, "").message).toContain("busy or not ready");
+    expect(errorFromAnswer("GET", "/api/x", 500, '{"error":"x"}').message).toContain("the daemon failed (HTTP 500)");
+  });
+
+  it("says the daemon cannot be reached when fetch itself fails", async () => {
+    const f: FetchLike = async () => { throw new TypeError("Failed to fetch"); };
+    const e: any = await apiJson("GET", "/api/status", undefined, f).catch((x: any) => x);
+    expect(e).toBeInstanceOf(ApiError);
+    expect(e.status).toBe(0);
+    expect(e.code).toBe("unreachable");
+    expect(e.message).toMatch(/cannot be reached \(GET \/api\/status\)/);
+  });
+
+  it("refuses a 2xx answer that is not JSON", async () => {
+    const e: any = await apiJson("GET", "/api/status", undefined, answer(200, "<html>")).catch((x: any) => x);
+    expect(e.code).toBe("bad_answer");
+  });
+
+  it("reads the render headers and the image", async () => {
+    const f = answer(200, "JPEGDATA", { "Content-Type": "image/jpeg", "X-Image-Size": "160x120", "X-Render-Ms": "12.5", "X-Renderer": "gl" });
+    const r = await apiRender({ width: 160, height: 120 }, f);
+    expect([r.width, r.height, r.renderMs, r.renderer]).toEqual([160, 120, 12.5, "gl"]);
+    expect(await r.blob.text()).toBe("JPEGDATA");
+    const bad: any = await apiRender({ preset: "nope" }, answer(400, '{"error":{"code":"bad_request","message":"preset: unknown"}}')).catch((x: any) => x);
+    expect(bad.message).toBe("preset: unknown");
+  });
+
+  it("words other throwables", () => {
+    expect(plainMessage(new Error("boom"))).toBe("Something went wrong: boom");
+    expect(plainMessage("x")).toBe("Something went wrong: x");
+  });
+});
