@@ -4,7 +4,8 @@
 // reading GET /api/cases and GET /api/status (alternately) for --seconds while one WebSocket
 // client subscribes to every tracker frame (tracker_hz 0). Prints one JSON object on stdout:
 // requests, errors, read latency percentiles, tracker frames received, gaps and out-of-order
-// frames (by seq and by the device's frame number), frame rate, the daemon's peak RSS (VmHWM)
+// frames (by seq and by the device's frame number), device frames the driver never read (jumps
+// in the device's frame number while seq has no gap: the daemon did not keep up), frame rate, the daemon's peak RSS (VmHWM)
 // and CPU time, whether the registration finished, the machine's load average.
 //
 // Exit code: 0 when there was no error and no gap (no timing assertion: latency depends on the
@@ -91,7 +92,7 @@ double percentile(const std::vector<double>& sorted, double p) {
 struct FrameWatcher {
     std::mutex mu;
     std::uint64_t frames = 0, frames_in_window = 0, seq_gaps = 0, seq_missing = 0, seq_out_of_order = 0,
-                  frame_out_of_order = 0, other = 0;
+                  frame_out_of_order = 0, frame_skips = 0, frames_skipped = 0, other = 0;
     std::uint64_t last_seq = 0, last_frame = 0;
     bool have_last = false, closed = false, subscribed = false;
     std::atomic<bool> in_window{false};
@@ -117,6 +118,10 @@ struct FrameWatcher {
                     w->seq_missing += seq - w->last_seq - 1;
                 }
                 if (frame <= w->last_frame) ++w->frame_out_of_order;
+                else if (frame != w->last_frame + 1) {  // the device's frames the driver never read
+                    ++w->frame_skips;
+                    w->frames_skipped += frame - w->last_frame - 1;
+                }
             }
             w->have_last = true;
             w->last_seq = std::max(w->last_seq, seq);
@@ -378,6 +383,9 @@ int main(int argc, char** argv) {
               {"seq_missing", watcher.seq_missing},
               {"seq_out_of_order", watcher.seq_out_of_order},
               {"frame_out_of_order", watcher.frame_out_of_order},
+              {"device_frame_skips", watcher.frame_skips},
+              {"device_frames_skipped", watcher.frames_skipped},
+              {"driver_counters", status["modules"]["tracker"].value("counters", json::object())},
               {"websocket_closed_early", closed_early},
               {"daemon_frame_rate_hz", status["modules"]["tracker"].value("frame_rate_hz", 0.0)}}},
             {"registration",
