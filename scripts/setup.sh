@@ -12,7 +12,7 @@ PACKAGES=(
   clang
   libgphoto2-dev libraw-dev libv4l-dev libudev-dev
   libegl-dev libepoxy-dev libegl-mesa0 libgl1-mesa-dri
-  xvfb xauth jq
+  xvfb xauth jq curl
   ccache
   libcivetweb-dev libcivetweb1 libcpp-httplib-dev libsystemd-dev systemd
   libsqlite3-dev sqlite3 libsodium-dev libzip-dev

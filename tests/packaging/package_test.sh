@@ -1,0 +1,98 @@
+#!/bin/bash
+# The .deb (issue 6): build it with cpack, extract it into a scratch root with dpkg-deb -x, check
+# the expected files, then start the installed cortexfused from that root with the shipped
+# default configuration (its /usr/share paths moved into the root, a temporary state folder, a
+# free port): GET /api/status must answer, the MRI must load from the installed data, and the
+# case store must be created on first start. Skips (77) without dpkg-deb, cpack, jq or curl.
+# Usage: package_test.sh BUILD_DIR CPACK
+set -euo pipefail
+build=$1
+cpack=${2:-cpack}
+for t in dpkg-deb jq curl "$cpack"; do
+    command -v "$t" >/dev/null || { echo "$t not installed: skipped"; exit 77; }
+done
+tmp=$(mktemp -d /tmp/cf-package-test-XXXXXX)
+pid=
+cleanup() {
+    if [ -n "$pid" ] && kill -0 "$pid" 2>/dev/null; then kill -KILL "$pid"; fi
+    rm -rf "$tmp"
+}
+trap cleanup EXIT
+fail() { echo "FAIL: $*"; [ -f "$tmp/daemon.log" ] && { echo "--- daemon log"; tail -40 "$tmp/daemon.log"; }; exit 1; }
+
+# 1. The package. (-B: its scratch and the .deb stay out of the build folder.)
+(cd "$build" && "$cpack" -G DEB -B "$tmp/pkg" >"$tmp/cpack.log" 2>&1) || { cat "$tmp/cpack.log"; fail "cpack -G DEB"; }
+deb=$(ls "$tmp"/pkg/cortexfuse_*.deb 2>/dev/null | head -1)
+[ -n "$deb" ] || { cat "$tmp/cpack.log"; fail "cpack made no cortexfuse_*.deb"; }
+echo "package: $(basename "$deb") ($(stat -c %s "$deb") bytes)"
+
+# 2. Control data.
+dpkg-deb -f "$deb" Package | grep -qx cortexfuse || fail "Package is not cortexfuse"
+dpkg-deb -f "$deb" Depends | grep -q libcivetweb || fail "Depends lacks the shared libraries (dpkg-shlibdeps): $(dpkg-deb -f "$deb" Depends)"
+mkdir "$tmp/control"
+dpkg-deb -e "$deb" "$tmp/control"
+for f in /etc/cortexfuse/cortexfused.json /etc/default/cortexfused; do
+    grep -qx "$f" "$tmp/control/conffiles" || fail "$f is not a conffile"
+done
+for s in postinst prerm postrm; do
+    [ -x "$tmp/control/$s" ] || fail "maintainer script $s missing or not executable"
+    sh -n "$tmp/control/$s" || fail "maintainer script $s: syntax error"
+done
+
+# 3. Files.
+root=$tmp/root
+dpkg-deb -x "$deb" "$root"
+for f in usr/bin/cortexfused usr/bin/cortexfuse \
+         usr/share/cortexfuse/data/t1_head_mne_ecog.nii.gz \
+         usr/share/cortexfuse/data/brainmask_mne_ecog_binary.nii.gz \
+         usr/share/cortexfuse/data/SOURCES.md \
+         lib/systemd/system/cortexfused.service lib/udev/rules.d/70-cortexfuse.rules \
+         etc/cortexfuse/cortexfused.json etc/default/cortexfused \
+         usr/share/doc/cortexfuse/daemon.md usr/share/doc/cortexfuse/copyright \
+         usr/share/doc/cortexfuse/api/status.md; do
+    [ -s "$root/$f" ] || fail "$f missing or empty in the package"
+done
+for f in usr/bin/cortexfused usr/bin/cortexfuse; do
+    [ -x "$root/$f" ] || fail "$f not executable"
+    if ldd "$root/$f" | grep -q "not found"; then fail "$f: $(ldd "$root/$f" | grep 'not found' | head -3)"; fi
+done
+grep -q '^ExecStart=/usr/bin/cortexfused' "$root/lib/systemd/system/cortexfused.service" || fail "unit's ExecStart is not /usr/bin/cortexfused"
+grep -q 'CORTEXFUSED_ARGS=.*--config /etc/cortexfuse/cortexfused.json' "$root/etc/default/cortexfused" || fail "/etc/default/cortexfused does not name the configuration"
+[ "$(jq -r .data.t1 "$root/etc/cortexfuse/cortexfused.json")" = /usr/share/cortexfuse/data/t1_head_mne_ecog.nii.gz ] ||
+    fail "the default configuration's data.t1 is not the installed MRI"
+if [ -f "$root/usr/share/cortexfuse/ui/index.html" ]; then echo "UI: included"; else echo "UI: not in this package (ui/dist was not built)"; fi
+
+# 4. The installed daemon, with the shipped configuration moved into the root.
+sed "s#/usr/share/cortexfuse#$root/usr/share/cortexfuse#g" "$root/etc/cortexfuse/cortexfused.json" >"$tmp/config.json"
+env -u CF_DATA_DIR "$root/usr/bin/cortexfused" --config "$tmp/config.json" --check-config >"$tmp/check.log" 2>&1 ||
+    { cat "$tmp/check.log"; fail "the shipped configuration does not validate"; }
+env -u CF_DATA_DIR -u STATE_DIRECTORY "$root/usr/bin/cortexfused" --config "$tmp/config.json" \
+    --listen 127.0.0.1:0 --state-dir "$tmp/state" >"$tmp/daemon.log" 2>&1 &
+pid=$!
+port=
+for _ in $(seq 300); do
+    port=$(sed -n 's#.*listening on http://127\.0\.0\.1:\([0-9]*\)/.*#\1#p' "$tmp/daemon.log" | head -1)
+    [ -n "$port" ] && break
+    kill -0 "$pid" 2>/dev/null || fail "the installed cortexfused exited before listening"
+    sleep 0.1
+done
+[ -n "$port" ] || fail "the installed cortexfused did not listen within 30 s"
+status=$(curl -sf "http://127.0.0.1:$port/api/status") || fail "GET /api/status did not answer 200"
+echo "$status" | jq -e '.name == "cortexfused" and (.version | type == "string")' >/dev/null || fail "status: $status"
+[ -f "$tmp/state/store/cortexfuse.sqlite" ] || fail "no case store created on first start in state/store"
+# The renderer loads the MRI named by the configuration (the installed copy).
+state=
+for _ in $(seq 600); do
+    state=$(curl -sf "http://127.0.0.1:$port/api/status" | jq -r .modules.renderer.state)
+    [ "$state" = loading ] || break
+    sleep 0.1
+done
+[ "$state" = ready ] || fail "renderer state '$state' (the installed MRI did not load)"
+curl -sf "http://127.0.0.1:$port/api/config" | jq -e --arg t "$root/usr/share/cortexfuse/data/t1_head_mne_ecog.nii.gz" '.data.t1 == $t' >/dev/null ||
+    fail "the daemon does not use the installed data.t1"
+kill -TERM "$pid"
+rc=0
+wait "$pid" || rc=$?
+pid=
+[ "$rc" = 0 ] || fail "cortexfused exited $rc on SIGTERM"
+echo "ok"
