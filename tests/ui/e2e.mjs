@@ -84,7 +84,9 @@ try {
   step(`rendered ${size1}`);
 
   // Preset and a drag: the picture changes to another view, preview first then full.
+  const n0 = await page.evaluate(() => window.cfRenderTimeline.length);
   await page.getByTestId("presets").getByRole("button", { name: "skin" }).tap();
+  await page.waitForFunction((n) => window.cfRenderTimeline.slice(n).some((e) => e.what === "full"), n0, { timeout: 30000 });
   const box = await page.getByTestId("render-stage").boundingBox();
   await page.mouse.move(box.x + box.width / 2, box.y + box.height / 2);
   await page.mouse.down();
@@ -95,6 +97,17 @@ try {
                                    /anterior/.test(document.querySelector('.choices .btn.active[data-value="anterior"]')?.dataset.value ?? ""), null, { timeout: 30000 });
   await page.waitForTimeout(1500); // the full-size render after the preview
   await shot("03-case-view-dragged");
+  // Two-step sizing: after the view changed, a small picture first, then the full one.
+  const tl = await page.evaluate(() => window.cfRenderTimeline);
+  const ci = tl.findIndex((e) => e.what === "change");
+  expect(ci >= 0, "the drag changed the view");
+  const after = tl.slice(ci + 1);
+  const pi = after.findIndex((e) => e.what === "preview");
+  const fi = after.findIndex((e, i) => i > pi && e.what === "full");
+  expect(pi >= 0 && fi > pi, `a preview, then the full picture after the drag (${JSON.stringify(after)})`);
+  const [pw] = after[pi].size.split("x").map(Number), [fw] = after[fi].size.split("x").map(Number);
+  expect(pw < fw, `the preview (${after[pi].size}) is smaller than the full picture (${after[fi].size})`);
+  step(`drag -> preview ${after[pi].size} after ${(after[pi].t - tl[ci].t).toFixed(0)} ms, full ${after[fi].size} after ${(after[fi].t - tl[ci].t).toFixed(0)} ms`);
 
   // Back to the cases list: the new case is listed; search filters.
   await page.getByRole("link", { name: "Cases" }).first().tap();
@@ -112,6 +125,7 @@ try {
   await shot("04-jobs-running");
   await running.getByTestId("cancel-job").tap();
   await page.locator('[data-testid="job-card"][data-state="cancelled"]').first().waitFor({ timeout: 30000 });
+  await page.getByTestId("sb-jobs").filter({ hasText: "0 running" }).waitFor({ timeout: 15000 });
   await shot("05-jobs-cancelled");
   step("register job started and cancelled");
 
@@ -121,6 +135,10 @@ try {
   await page.getByTestId("case-search").fill("");
   await page.getByTestId("case-row").first().waitFor();
   await shot("06-cases-1920");
+  const n1 = await page.evaluate(() => window.cfRenderTimeline.length);
+  await page.getByTestId("case-row").first().tap();
+  await page.waitForFunction((n) => window.cfRenderTimeline.slice(n).some((e) => e.what === "full"), n1, { timeout: 30000 });
+  await shot("07-case-view-1920");
 
   expect(pageErrors.length === 0, `no page errors (${pageErrors.join("; ")})`);
   step("PASS");

@@ -2,7 +2,7 @@
 import "./style.css";
 import { apiJson, apiRender, plainMessage, type RenderedImage } from "./api";
 import { PushChannel, type PushState } from "./push";
-import { RenderScheduler, renderSizes } from "./render_scheduler";
+import { fitFocalPx, RenderScheduler, renderSizes } from "./render_scheduler";
 import { drawNmiPlot, type NmiPoint } from "./nmiplot";
 
 // ---- tiny DOM helper ---------------------------------------------------------------------
@@ -195,6 +195,10 @@ function casesScreen(): void {
 }
 
 // ---- Case view ---------------------------------------------------------------------------
+// View changes and pictures shown, with their time: the e2e test reads it to measure how soon
+// a touch shows a new picture (window.cfRenderTimeline).
+const timeline: { what: string; t: number; size: string }[] = [];
+(window as unknown as { cfRenderTimeline: typeof timeline }).cfRenderTimeline = timeline;
 interface View { preset: string; opacity: number; view: string }
 const ORBIT = ["left", "anterior", "right", "posterior"];
 
@@ -204,7 +208,7 @@ function caseScreen(id: number): void {
   const stage = h("div", { class: "render-stage", "data-testid": "render-stage" }, img);
   const info = h("div", { class: "muted", "data-testid": "render-info" }, "Rendering…");
   const presets = h("div", { class: "choices", "data-testid": "presets" });
-  const views = h("div", { class: "choices" });
+  const views = h("div", { class: "choices two" });
   const opacityOut = h("span", { class: "value" }, "100 %");
   const opacity = h("input", { type: "range", min: 0, max: 100, step: 5, value: 100, class: "slider", "data-testid": "opacity" });
   const side = h("aside", { class: "controls" },
@@ -218,7 +222,8 @@ function caseScreen(id: number): void {
   let url = "";
   let alive = true;
   const sched = new RenderScheduler<View>({
-    render: (view, size) => apiRender({ width: size.width, height: size.height, preset: view.preset, opacity: view.opacity, view: view.view }),
+    render: (view, size) => apiRender({ width: size.width, height: size.height, preset: view.preset, opacity: view.opacity, view: view.view,
+                                       distance_mm: 450, focal_px: fitFocalPx(size.width, size.height, 450, 95) }),
     onImage: (r, _view, size, full) => {
       if (!alive) return;
       const ri = r as RenderedImage;
@@ -228,6 +233,7 @@ function caseScreen(id: number): void {
       img.dataset.size = `${size.width}x${size.height}`;
       img.dataset.full = String(full);
       info.textContent = `${ri.width}x${ri.height} ${full ? "" : "preview "}in ${ri.renderMs.toFixed(0)} ms (${ri.renderer})`;
+      timeline.push({ what: full ? "full" : "preview", t: performance.now(), size: `${size.width}x${size.height}` });
     },
     onError: (e) => alive && showError(e),
     sizes: () => renderSizes(stage.clientWidth || 640, stage.clientHeight || 480, 1, { width: 1280, height: 1024 }),
@@ -263,7 +269,7 @@ function caseScreen(id: number): void {
       const steps = Math.round(dx / 60);
       next = ORBIT[(((i0 + steps) % 4) + 4) % 4];
     }
-    if (next !== v.view) { setView(next); sched.interactive({ ...v }); }
+    if (next !== v.view) { setView(next); timeline.push({ what: "change", t: performance.now(), size: "" }); sched.interactive({ ...v }); }
   });
   const end = () => { start = null; };
   stage.addEventListener("pointerup", end);

@@ -33,7 +33,8 @@ export interface SchedulerOptions<V, R> {
 }
 
 export class RenderScheduler<V> {
-  private wanted: { v: V; full: boolean; gen: number } | null = null;
+  // What to render next, in order: at most [preview, full] of the newest view.
+  private queue: { v: V; full: boolean; gen: number }[] = [];
   private busy = false;
   private gen = 0;
   private shownGen = -1;
@@ -49,33 +50,33 @@ export class RenderScheduler<V> {
   /** The view changed during a gesture: a preview now, the full size once it rests. */
   interactive(v: V): void {
     const gen = ++this.gen;
-    this.want({ v, full: false, gen });
+    this.queue = [{ v, full: false, gen }];
     if (this.settle !== null) this.timers.clear(this.settle);
     this.settle = this.timers.set(() => {
       this.settle = null;
-      if (this.gen === gen) this.want({ v, full: true, gen });
+      if (this.gen !== gen) return;
+      // The preview of this view still waiting (a render was in flight): it goes first.
+      const waiting = this.queue.length === 1 && this.queue[0].gen === gen && !this.queue[0].full;
+      this.queue = waiting ? [this.queue[0], { v, full: true, gen }] : [{ v, full: true, gen }];
+      this.pump();
     }, this.settleMs);
+    this.pump();
   }
 
   /** The view changed by a button: straight to full size. */
   now(v: V): void {
     if (this.settle !== null) { this.timers.clear(this.settle); this.settle = null; }
-    this.want({ v, full: true, gen: ++this.gen });
+    this.queue = [{ v, full: true, gen: ++this.gen }];
+    this.pump();
   }
 
   get inFlight(): boolean {
     return this.busy;
   }
 
-  private want(w: { v: V; full: boolean; gen: number }): void {
-    this.wanted = w;
-    this.pump();
-  }
-
   private pump(): void {
-    if (this.busy || !this.wanted) return;
-    const w = this.wanted;
-    this.wanted = null;
+    if (this.busy || !this.queue.length) return;
+    const w = this.queue.shift()!;
     const sizes = this.o.sizes();
     const size = w.full ? sizes.full : sizes.preview;
     this.busy = true;
@@ -93,4 +94,11 @@ export class RenderScheduler<V> {
       this.pump();
     });
   }
+}
+
+/** Focal length (px) that fits `halfExtentMm` round the volume's centre into the shorter side
+ *  of a width x height picture seen from `distanceMm` (the daemon's default fits the width only,
+ *  which crops the head in a wide view). Proportional to the size, so preview and full agree. */
+export function fitFocalPx(width: number, height: number, distanceMm = 450, halfExtentMm = 95): number {
+  return (0.5 * Math.min(width, height) * distanceMm) / halfExtentMm;
 }

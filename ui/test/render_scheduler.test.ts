@@ -1,7 +1,12 @@
 import { describe, expect, it } from "vitest";
-import { RenderScheduler, renderSizes, type Size } from "../src/render_scheduler";
+import { fitFocalPx, RenderScheduler, renderSizes, type Size } from "../src/render_scheduler";
 
 describe("render sizes", () => {
+  it("the focal length fits the shorter side and scales with the picture", () => {
+    expect(fitFocalPx(640, 480, 450, 110)).toBeCloseTo(0.5 * 480 * 450 / 110, 10);
+    expect(fitFocalPx(480, 640, 450, 110)).toBeCloseTo(0.5 * 480 * 450 / 110, 10);
+    expect(fitFocalPx(160, 120) * 4).toBeCloseTo(fitFocalPx(640, 480), 10);
+  });
   it("full size from the element and the pixel ratio, preview a quarter", () => {
     const s = renderSizes(800, 600, 1, { width: 2048, height: 2048 });
     expect(s.full).toEqual({ width: 800, height: 600 });
@@ -128,5 +133,22 @@ describe("RenderScheduler", () => {
     t.calls[1].resolve("b-full");
     await t.flush();
     expect(t.shown).toEqual([{ r: "b-full", full: true }]);
+  });
+
+  it("when the finger rests before the preview could start, the preview still comes first", async () => {
+    const t = harness();
+    t.sched.now("a"); // a slow full render in flight
+    t.sched.interactive("b");
+    t.advance(200); // rests while "a" still renders
+    expect(t.calls.length).toBe(1);
+    t.calls[0].resolve("a-full");
+    await t.flush();
+    expect(t.calls.map((c) => [c.v, c.size.width])).toEqual([["a", 640], ["b", 160]]);
+    t.calls[1].resolve("b-small");
+    await t.flush();
+    expect(t.calls.map((c) => [c.v, c.size.width])).toEqual([["a", 640], ["b", 160], ["b", 640]]);
+    t.calls[2].resolve("b-full");
+    await t.flush();
+    expect(t.shown.map((s) => s.r)).toEqual(["a-full", "b-small", "b-full"]);
   });
 });
