@@ -21,6 +21,7 @@ trap cleanup EXIT
 fail() { echo "FAIL: $*"; [ -f "$tmp/daemon.log" ] && { echo "--- daemon log"; tail -40 "$tmp/daemon.log"; }; exit 1; }
 
 # 1. The package. (-B: its scratch and the .deb stay out of the build folder.)
+[ -f "$build/CPackConfig.cmake" ] || fail "$build has no CPackConfig.cmake (configure the project first)"
 (cd "$build" && "$cpack" -G DEB -B "$tmp/pkg" >"$tmp/cpack.log" 2>&1) || { cat "$tmp/cpack.log"; fail "cpack -G DEB"; }
 deb=$(ls "$tmp"/pkg/cortexfuse_*.deb 2>/dev/null | head -1)
 [ -n "$deb" ] || { cat "$tmp/cpack.log"; fail "cpack made no cortexfuse_*.deb"; }
