@@ -135,6 +135,13 @@ async function loadJobs(): Promise<void> {
   } catch (e) { showError(e); }
 }
 
+// The push channel drops its oldest messages when the daemon is overloaded (docs/api/push.md),
+// so a job's last notify_job can be lost: while any job is queued or running, read the list
+// every 2 s as well.
+setInterval(() => {
+  if ([...jobs.values()].some((j) => j.state === "queued" || j.state === "running")) loadJobs();
+}, 2000);
+
 // ---- router ------------------------------------------------------------------------------
 const tabs: [string, string][] = [["#/cases", "Cases"], ["#/jobs", "Jobs"]];
 let leaveScreen: (() => void) | null = null;
