@@ -115,6 +115,16 @@ try {
   await page.getByTestId("case-search").fill("no-such-case-xyz");
   await page.getByText("No case matches this search.").waitFor({ timeout: 5000 });
 
+  // A failed request (a case that does not exist): the daemon's own words in a banner.
+  await page.evaluate(() => { location.hash = "#/case/99999"; });
+  const banner = page.getByTestId("error-banner").filter({ hasText: "99999" });
+  await banner.waitFor({ timeout: 10000 });
+  await page.getByTestId("case-missing").waitFor({ timeout: 5000 });
+  step(`banner: ${await banner.locator(".text").textContent()}`);
+  await shot("04-error-banner");
+  await banner.getByRole("button", { name: "Dismiss" }).tap();
+  await banner.waitFor({ state: "detached", timeout: 5000 });
+
   // Jobs: start a registration on the phantom folder, see progress with NMI, cancel.
   await page.getByRole("link", { name: "Jobs" }).tap();
   await page.waitForFunction(() => [...document.querySelectorAll('[data-testid="case-folder"] option')].some((o) => o.value.startsWith("phantom/")), null, { timeout: 60000 });
@@ -122,11 +132,11 @@ try {
   const running = page.locator('[data-testid="job-card"][data-state="running"]');
   await running.filter({ hasText: /NMI \d\.\d{4}/ }).waitFor({ timeout: 60000 });
   await page.waitForTimeout(2500); // a few plot points
-  await shot("04-jobs-running");
+  await shot("05-jobs-running");
   await running.getByTestId("cancel-job").tap();
   await page.locator('[data-testid="job-card"][data-state="cancelled"]').first().waitFor({ timeout: 30000 });
   await page.getByTestId("sb-jobs").filter({ hasText: "0 running" }).waitFor({ timeout: 15000 });
-  await shot("05-jobs-cancelled");
+  await shot("06-jobs-cancelled");
   step("register job started and cancelled");
 
   // The same at 1920x1080.
@@ -134,11 +144,11 @@ try {
   await page.getByRole("link", { name: "Cases" }).first().tap();
   await page.getByTestId("case-search").fill("");
   await page.getByTestId("case-row").first().waitFor();
-  await shot("06-cases-1920");
+  await shot("07-cases-1920");
   const n1 = await page.evaluate(() => window.cfRenderTimeline.length);
   await page.getByTestId("case-row").first().tap();
   await page.waitForFunction((n) => window.cfRenderTimeline.slice(n).some((e) => e.what === "full"), n1, { timeout: 30000 });
-  await shot("07-case-view-1920");
+  await shot("08-case-view-1920");
 
   expect(pageErrors.length === 0, `no page errors (${pageErrors.join("; ")})`);
   step("PASS");

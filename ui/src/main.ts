@@ -258,10 +258,18 @@ function caseScreen(id: number): void {
     presets.replaceChildren(...r.presets.map((p) => h("button", { class: "btn", "data-value": p, onclick: () => { v.preset = p; mark(presets, p); sched.now({ ...v }); } }, p.replace(/_/g, " "))));
     mark(presets, v.preset);
   }, showError);
+  const layout = main.querySelector(".case-layout")!;
   apiJson<CaseSummary & { patient?: unknown }>("GET", `/api/cases/${id}`).then((c) => {
+    if (!alive) return;
     header.querySelector("h1")!.textContent = c.title || `Case ${id}`;
     header.append(h("span", { class: "badge", "data-testid": "case-state" }, c.state.replace(/_/g, " ")));
-  }, showError);
+    sched.now({ ...v });
+  }, (e) => {
+    if (!alive) return;
+    showError(e);
+    layout.replaceChildren(h("p", { class: "muted", "data-testid": "case-missing" },
+      "This case could not be opened. Go back to the cases and pick another, or create one."));
+  });
 
   // Drag: every 60 px sideways steps round the head, up/down looks from above/below.
   let start: { x: number; y: number; view: string } | null = null;
@@ -281,7 +289,6 @@ function caseScreen(id: number): void {
   const end = () => { start = null; };
   stage.addEventListener("pointerup", end);
   stage.addEventListener("pointercancel", end);
-  requestAnimationFrame(() => sched.now({ ...v }));
 }
 
 // ---- Jobs --------------------------------------------------------------------------------
