@@ -58,6 +58,7 @@ try {
   await page.goto(`${base}/`);
   await page.getByTestId("sb-link").filter({ hasText: "Live" }).waitFor({ timeout: 15000 });
   await page.getByTestId("sb-tracker").filter({ hasText: /streaming \d+ Hz/ }).waitFor({ timeout: 20000 });
+  await page.waitForFunction(() => Number(document.querySelector('[data-testid="sb-tools"]')?.dataset.seq) > 0, null, { timeout: 15000 });
   const seq1 = Number(await page.getByTestId("sb-tools").getAttribute("data-seq"));
   await page.waitForTimeout(600);
   const seq2 = Number(await page.getByTestId("sb-tools").getAttribute("data-seq"));
