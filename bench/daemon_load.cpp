@@ -96,6 +96,8 @@ struct FrameWatcher {
     std::uint64_t last_seq = 0, last_frame = 0;
     bool have_last = false, closed = false, subscribed = false;
     std::atomic<bool> in_window{false};
+    Clock::time_point subscribed_at{};
+    std::uint64_t before_subscribe = 0;
     std::string job_state;  // newest notify_job state of the registration
     long job_id = -1;
 
@@ -107,6 +109,13 @@ struct FrameWatcher {
         std::lock_guard lk(w->mu);
         const std::string method = m.value("method", "");
         if (method == "notify_tracker_frame") {
+            // Before push.subscribe took effect frames come at the default rate (throttled, so
+            // with seq gaps by design); frames already queued to this client's writer may still
+            // arrive just after the answer. Order is checked from 200 ms after the answer.
+            if (!w->subscribed || Clock::now() < w->subscribed_at + std::chrono::milliseconds(200)) {
+                ++w->before_subscribe;
+                return 1;
+            }
             const auto seq = m["params"].value("seq", std::uint64_t(0));
             const auto frame = m["params"].value("frame", std::uint64_t(0));
             ++w->frames;
@@ -128,8 +137,9 @@ struct FrameWatcher {
             w->last_frame = std::max(w->last_frame, frame);
         } else if (method == "notify_job") {
             if (m["params"].value("id", -1L) == w->job_id) w->job_state = m["params"].value("state", "");
-        } else if (m.contains("id") && m.contains("result")) {
+        } else if (m.value("id", 0) == 1 && m.contains("result")) {
             w->subscribed = true;
+            w->subscribed_at = Clock::now();
         } else {
             ++w->other;
         }
@@ -273,6 +283,11 @@ int main(int argc, char** argv) {
     if (!ws) fail(std::string("WebSocket /api/ws: ") + err, pid, dir);
     const std::string sub = R"({"jsonrpc":"2.0","id":1,"method":"push.subscribe","params":{"tracker_hz":0,"topics":["tracker","jobs"]}})";
     mg_websocket_client_write(ws, MG_WEBSOCKET_OPCODE_TEXT, sub.data(), sub.size());
+    for (const auto until = Clock::now() + std::chrono::seconds(10);; std::this_thread::sleep_for(std::chrono::milliseconds(10))) {
+        std::lock_guard lk(watcher.mu);
+        if (watcher.subscribed && Clock::now() > watcher.subscribed_at + std::chrono::milliseconds(300)) break;
+        if (Clock::now() > until) fail("push.subscribe was not answered within 10 s", pid, dir);
+    }
 
     long job_id = -1;
     if (!no_register) {
@@ -377,6 +392,7 @@ int main(int argc, char** argv) {
               {"max", all.empty() ? 0.0 : all.back()}, {"mean", mean}}},
             {"tracker",
              {{"frames_received", watcher.frames},
+              {"frames_before_subscribed", watcher.before_subscribe},
               {"frames_in_window", watcher.frames_in_window},
               {"frame_rate_hz", double(watcher.frames_in_window) / window_s},
               {"seq_gaps", watcher.seq_gaps},
