@@ -73,7 +73,7 @@ try {
   await page.getByTestId("new-case-title").fill("E2E phantom case");
   await shot("01-cases");
   await page.getByTestId("create-case").tap();
-  await page.waitForURL(/#\/case\/\d+$/, { timeout: 10000 });
+  await page.waitForURL(/#\/case\/\d+$/, { timeout: 20000 });
   step(`case created: ${page.url()}`);
 
   // Case view: a rendered picture at full size.
@@ -112,9 +112,9 @@ try {
 
   // Back to the cases list: the new case is listed; search filters.
   await page.getByRole("link", { name: "Cases" }).first().tap();
-  await page.getByTestId("case-row").filter({ hasText: "E2E phantom case" }).waitFor({ timeout: 10000 });
+  await page.getByTestId("case-row").filter({ hasText: "E2E phantom case" }).waitFor({ timeout: 20000 });
   await page.getByTestId("case-search").fill("no-such-case-xyz");
-  await page.getByText("No case matches this search.").waitFor({ timeout: 5000 });
+  await page.getByText("No case matches this search.").waitFor({ timeout: 15000 });
 
   // A failed request (a case that does not exist): the daemon's own words in a banner.
   await page.evaluate(() => { location.hash = "#/case/99999"; });

@@ -317,34 +317,56 @@ function jobsScreen(): void {
     } catch (e) { showError(e); }
   });
 
+  // Cards are made once per job and updated in place: progress arrives up to 10 times a second
+  // and a button re-created under a finger would swallow the touch.
+  interface Card { el: HTMLElement; badge: HTMLElement; bar: HTMLElement; stage: HTMLElement; nmi: HTMLElement;
+                   evals: HTMLElement; error: HTMLElement; cancel: HTMLButtonElement }
+  const cards = new Map<number, Card>();
+  const empty = h("p", { class: "muted" }, "No jobs yet.");
+  const makeCard = (j: Job): Card => {
+    const c: Card = {
+      el: h("div", { class: "job", "data-testid": "job-card", onclick: () => { selected = j.id; render(); } }),
+      badge: h("span", { class: "badge" }), bar: h("div", { class: "bar" }), stage: h("span"), nmi: h("span"),
+      evals: h("span"), error: h("div", { class: "job-error" }),
+      cancel: h("button", { class: "btn danger", "data-testid": "cancel-job" }, "Cancel"),
+    };
+    c.cancel.addEventListener("click", async (ev) => {
+      ev.stopPropagation();
+      c.cancel.disabled = true;
+      try { upsertJob(await apiJson<Job>("POST", `/api/jobs/${j.id}/cancel`)); } catch (e) { c.cancel.disabled = false; showError(e); }
+    });
+    c.el.append(
+      h("div", { class: "job-head" }, h("strong", {}, `#${j.id} ${j.kind}`), c.badge,
+        h("span", { class: "muted grow" }, String(j.params?.case ?? j.params?.case_id ?? ""))),
+      h("div", { class: "progress" }, c.bar), h("div", { class: "job-figs" }, c.stage, c.nmi, c.evals), c.error, c.cancel);
+    return c;
+  };
   const render = () => {
     const all = [...jobs.values()].sort((a, b) => b.id - a.id);
     if (selected === null && all.length) selected = all[0].id;
-    list.replaceChildren(...(all.length ? all.map((j) => {
+    const order: HTMLElement[] = [];
+    for (const j of all) {
+      let c = cards.get(j.id);
+      if (!c) { c = makeCard(j); cards.set(j.id, c); }
       const active = j.state === "queued" || j.state === "running";
       const nmi = j.figures?.nmi, best = j.figures?.best_nmi;
       const pct = Math.round((j.fraction ?? 0) * 100);
-      const card = h("div", { class: `job${j.id === selected ? " selected" : ""}`, "data-testid": "job-card", "data-state": j.state,
-        onclick: () => { selected = j.id; render(); } },
-        h("div", { class: "job-head" },
-          h("strong", {}, `#${j.id} ${j.kind}`),
-          h("span", { class: `badge ${j.state}` }, j.state),
-          h("span", { class: "muted grow" }, String(j.params?.case ?? j.params?.case_id ?? ""))),
-        h("div", { class: "progress" }, h("div", { class: "bar", style: `width:${pct}%` })),
-        h("div", { class: "job-figs" },
-          h("span", {}, `${j.stage}${active ? ` · ${pct} %` : ""}`),
-          h("span", {}, typeof nmi === "number" ? `NMI ${nmi.toFixed(4)} (best ${best?.toFixed(4) ?? "–"})` : ""),
-          h("span", {}, typeof j.figures?.evaluation === "number" ? `${j.figures.evaluation} evaluations` : "")),
-        j.error ? h("div", { class: "job-error" }, j.error) : "");
-      if (active) {
-        card.append(h("button", { class: "btn danger", "data-testid": "cancel-job", disabled: !!j.cancel_requested,
-          onclick: async (ev: Event) => {
-            ev.stopPropagation();
-            try { upsertJob(await apiJson<Job>("POST", `/api/jobs/${j.id}/cancel`)); } catch (e) { showError(e); }
-          } }, j.cancel_requested ? "Cancelling…" : "Cancel"));
-      }
-      return card;
-    }) : [h("p", { class: "muted" }, "No jobs yet.")]));
+      c.el.className = `job${j.id === selected ? " selected" : ""}`;
+      c.el.dataset.state = j.state;
+      c.badge.className = `badge ${j.state}`;
+      c.badge.textContent = j.state;
+      c.bar.style.width = `${pct}%`;
+      c.stage.textContent = `${j.stage}${active ? ` · ${pct} %` : ""}`;
+      c.nmi.textContent = typeof nmi === "number" ? `NMI ${nmi.toFixed(4)} (best ${best?.toFixed(4) ?? "–"})` : "";
+      c.evals.textContent = typeof j.figures?.evaluation === "number" ? `${j.figures.evaluation} evaluations` : "";
+      c.error.textContent = j.error ?? "";
+      c.error.hidden = !j.error;
+      c.cancel.hidden = !active;
+      if (j.cancel_requested) { c.cancel.disabled = true; c.cancel.textContent = "Cancelling…"; }
+      order.push(c.el);
+    }
+    if (!order.length) order.push(empty);
+    if (order.length !== list.children.length || order.some((el, i) => list.children[i] !== el)) list.replaceChildren(...order);
     const ctx = canvas.getContext("2d");
     if (ctx) drawNmiPlot(ctx, selected !== null ? nmiSeries.get(selected) ?? [] : [], canvas.width, canvas.height);
     plotTitle.textContent = selected !== null ? `NMI against evaluations, job #${selected}` : "NMI against evaluations";
