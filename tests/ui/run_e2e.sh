@@ -4,4 +4,7 @@
 set -u
 daemon=${1:?usage: run_e2e.sh CORTEXFUSED UI_DIR ARTEFACT_DIR}; ui=${2:?}; art=${3:?}
 command -v node >/dev/null 2>&1 || { echo "SKIP: node not installed"; exit 77; }
+major=$(node -p 'process.versions.node.split(".")[0]')
+# playwright-core 1.65 needs node >= 20 (Debian 12's own nodejs is 18: the unit tests run, this one skips).
+[ "$major" -ge 20 ] || { echo "SKIP: node $(node --version) is older than 20 (playwright-core)"; exit 77; }
 exec node "$(dirname "$0")/e2e.mjs" "$daemon" "$ui" "$art"
