@@ -89,10 +89,15 @@ try {
   await page.getByTestId("presets").getByRole("button", { name: "skin" }).tap();
   await page.waitForFunction((n) => window.cfRenderTimeline.slice(n).some((e) => e.what === "full"), n0, { timeout: 30000 });
   const box = await page.getByTestId("render-stage").boundingBox();
-  await page.mouse.move(box.x + box.width / 2, box.y + box.height / 2);
-  await page.mouse.down();
-  await page.mouse.move(box.x + box.width / 2 + 70, box.y + box.height / 2, { steps: 5 });
-  await page.mouse.up();
+  // A finger drag, as real touch events (CDP Input.dispatchTouchEvent), 70 px to the right.
+  const cdp = await browser.newCDPSession(page);
+  const x0 = box.x + box.width / 2, y0 = box.y + box.height / 2;
+  await cdp.send("Input.dispatchTouchEvent", { type: "touchStart", touchPoints: [{ x: x0, y: y0 }] });
+  for (let i = 1; i <= 7; i++) {
+    await cdp.send("Input.dispatchTouchEvent", { type: "touchMove", touchPoints: [{ x: x0 + 10 * i, y: y0 }] });
+    await page.waitForTimeout(16);
+  }
+  await cdp.send("Input.dispatchTouchEvent", { type: "touchEnd", touchPoints: [] });
   await page.waitForFunction(() => document.querySelector('.choices .btn.active[data-value="anterior"]') !== null, null, { timeout: 5000 });
   await page.waitForFunction(() => document.querySelector('[data-testid="render-image"]')?.dataset.full === "true" &&
                                    /anterior/.test(document.querySelector('.choices .btn.active[data-value="anterior"]')?.dataset.value ?? ""), null, { timeout: 30000 });
