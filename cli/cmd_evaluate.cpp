@@ -32,7 +32,7 @@ struct EvalCmd {
     std::string dir, params_file, out_json, out_md, out_png;
     int trials = 10;
     double max_mm = 10, max_deg = 5;
-    bool wide = false, seed_schedule = false, no_prior = false;
+    bool wide = false, seed_schedule = false, no_prior = false, from_truth = false;
     std::string renderer = "cpu";
     uint64_t seed = 1;
     int limit_cases = 0;
@@ -133,6 +133,8 @@ void add_evaluate(CLI::App& app) {
     sub->add_option("--params", o->params_file, "Registration parameters (JSON)");
     sub->add_flag("--seed-schedule", o->seed_schedule, "Use the seed's original stage schedule");
     sub->add_flag("--no-prior", o->no_prior, "Turn the landmark prior off");
+    sub->add_flag("--from-truth", o->from_truth,
+                  "Start every run at the true pose (diagnosis: how far the similarity's own optimum lies from the truth)");
     sub->add_option("--renderer", o->renderer, "Ray caster for the similarity: cpu, gl (EGL/OpenGL) or auto")
         ->capture_default_str();
     sub->add_option("--limit-cases", o->limit_cases, "Use only the first N cases");
@@ -204,15 +206,20 @@ void add_evaluate(CLI::App& app) {
                 const Eigen::Vector3d pivot_cam = fit.T_camera_from_world.topLeftCorner<3, 3>() * c_world + fit.T_camera_from_world.topRightCorner<3, 1>();
                 for (int t = 0; t < trials; ++t) {
                     const PoseParams x = from_landmarks ? PoseParams{0, 0, 0, 0, 0, 0} : random_misalignment(rng, o->max_mm, o->max_deg);
-                    const Pose T_init = apply_params(fit.T_camera_from_world, pivot_cam, x);
+                    const Pose T_init = o->from_truth ? truth.T_camera_from_world : apply_params(fit.T_camera_from_world, pivot_cam, x);
                     PhotoInput in = c.photo;
-                    if (!from_landmarks) in.initial_pose = T_init;
+                    if (!from_landmarks || o->from_truth) in.initial_pose = T_init;
                     Progress inner;
                     inner.cancel = bar.progress().cancel;
                     inner.report = [&](const std::string& stage, double f) {
                         bar.progress()(dir.filename().string() + " " + stage, (done + f) / total);
                     };
                     const RegistrationResult r = engine->run(in, &inner);
+                    // Search or similarity? The truth's cost at the last stage beside the result's.
+                    const StageParams& last = !params.final_stages.empty() ? params.final_stages.back() : params.search_stages.back();
+                    const Pose T_ref = in.initial_pose ? *in.initial_pose : r.initial_T_camera_from_world;
+                    const auto s_truth = engine->score(in, truth.T_camera_from_world, T_ref, last);
+                    const auto s_final = engine->score(in, r.T_camera_from_world, T_ref, last);
                     const PoseErrors e0 = pose_errors(truth, K, T_init, mesh);
                     const PoseErrors e1 = pose_errors(truth, K, r.T_camera_from_world, mesh);
                     init.mre.push_back(e0.mre_mm);
@@ -230,7 +237,9 @@ void add_evaluate(CLI::App& app) {
                                     {"registered", {{"mre_mm", e1.mre_mm}, {"tre_mm", e1.tre_mm}, {"ipe_px", e1.ipe_px},
                                                     {"targets_missed", e1.targets_missed}}},
                                     {"landmarks_only", {{"mre_mm", e_lm.mre_mm}, {"tre_mm", e_lm.tre_mm}}},
-                                    {"seconds", r.seconds}, {"evaluations", r.evaluations}, {"similarity", r.similarity}});
+                                    {"seconds", r.seconds}, {"evaluations", r.evaluations}, {"similarity", r.similarity},
+                                    {"truth_score", {{"similarity", s_truth.similarity}, {"cost", s_truth.cost}}},
+                                    {"final_score", {{"similarity", s_final.similarity}, {"cost", s_final.cost}}}});
                     ++done;
                 }
             }

@@ -82,6 +82,7 @@ void RegistrationParams::validate(const std::string& ctx) const {
     if (!(landmark_prior_weight >= 0) || !(landmark_prior_tolerance_px >= 0)) bad("landmark prior must be >= 0");
     if (!(sample_distance_mm >= 0.1 && sample_distance_mm <= 5)) bad("sample_distance_mm must be 0.1..5");
     if (!(roi_margin_fraction >= 0 && roi_margin_fraction <= 2)) bad("roi_margin_fraction must be 0..2");
+    if (!(depth_weight >= 0 && depth_weight <= 1)) bad("depth_weight must be 0..1");
     if (starts.empty()) bad("at least one start");
     if (search_stages.empty() && final_stages.empty()) bad("at least one stage");
     if (keep_best < 1) bad("keep_best must be >= 1");
@@ -129,8 +130,10 @@ json to_json(const RegistrationParams& p) {
     j["highpass_fwhm_mm"] = p.highpass_fwhm_mm;
     j["landmark_prior_weight"] = p.landmark_prior_weight;
     j["landmark_prior_tolerance_px"] = p.landmark_prior_tolerance_px;
+    j["landmark_prior_expected"] = p.landmark_prior_expected;
     j["sample_distance_mm"] = p.sample_distance_mm;
     j["roi_margin_fraction"] = p.roi_margin_fraction;
+    j["depth_weight"] = p.depth_weight;
     j["starts"] = p.starts;
     j["keep_best"] = p.keep_best;
     j["search_stages"] = json::array();
@@ -153,8 +156,10 @@ RegistrationParams registration_params_from_json(const json& j, const std::strin
         p.highpass_fwhm_mm = j.value("highpass_fwhm_mm", p.highpass_fwhm_mm);
         p.landmark_prior_weight = j.value("landmark_prior_weight", p.landmark_prior_weight);
         p.landmark_prior_tolerance_px = j.value("landmark_prior_tolerance_px", p.landmark_prior_tolerance_px);
+        p.landmark_prior_expected = j.value("landmark_prior_expected", p.landmark_prior_expected);
         p.sample_distance_mm = j.value("sample_distance_mm", p.sample_distance_mm);
         p.roi_margin_fraction = j.value("roi_margin_fraction", p.roi_margin_fraction);
+        p.depth_weight = j.value("depth_weight", p.depth_weight);
         if (j.contains("starts")) p.starts = j.at("starts").get<std::vector<PoseParams>>();
         p.keep_best = j.value("keep_best", p.keep_best);
         if (j.contains("search_stages")) {
@@ -412,12 +417,30 @@ public:
             L.blurred_fwhm_mm = st.fwhm_mm;
         }
         renderer_.render(L.K, T, ropt_, img_);
-        const cv::Mat rendered(L.K.height, L.K.width, CV_32F, img_.grey.data());
+        cv::Mat rendered(L.K.height, L.K.width, CV_32F, img_.grey.data());
+        if (p_.depth_weight > 0) rendered = mix_relief(L.K.width, L.K.height);
         filter(rendered, rendered_blur_, st.fwhm_mm, L);
         return sim_.evaluate(metric_, rendered_blur_, L.photo_blur, L.photo.valid);
     }
 
 private:
+    /// (1 - w) * shading + w * relief (negated depth, 1 per 10 mm; background at the deepest
+    /// hit), in a reused buffer.
+    cv::Mat& mix_relief(int w, int h) {
+        mixed_.create(h, w, CV_32F);
+        const size_t n = size_t(w) * h;
+        float deepest = 0;
+        for (size_t i = 0; i < n; ++i)
+            if (img_.coverage[i]) deepest = std::max(deepest, img_.depth_mm[i]);
+        const float wd = float(p_.depth_weight), ws = 1.f - wd;
+        float* m = mixed_.ptr<float>();
+        for (size_t i = 0; i < n; ++i) {
+            const float d = img_.coverage[i] ? img_.depth_mm[i] : deepest;
+            m[i] = ws * img_.grey[i] - wd * d * 0.1f;
+        }
+        return mixed_;
+    }
+
     /// Blur by the stage's FWHM; with a high-pass, also remove shading trends wider than
     /// highpass_fwhm_mm (lighting gradients and vignetting that out-of-plane tilts would
     /// otherwise be fitted to) and rescale the result to [0, 1] inside the mask.
@@ -443,11 +466,52 @@ private:
     RenderOptions ropt_;
     std::map<int, Level> levels_;
     RenderImage img_;
-    cv::Mat rendered_blur_, lowpass_;
+    cv::Mat rendered_blur_, lowpass_, mixed_;
     double depth_mm_ = 300;
 };
 
+/// The soft landmark prior: weight * max(0, rms - rms_landmark_fit - tolerance)^2, rms in
+/// pixels at kPriorReferenceWidthPx.
+class LandmarkPrior {
+public:
+    LandmarkPrior(const PhotoInput& in, const RegistrationParams& p) : in_(in), p_(p) {
+        use_ = p.landmark_prior_weight > 0 && in.landmarks.size() >= 4;
+        if (!use_) return;
+        rms_ref_px_ = fit_pose_pnp(in.landmarks, in.camera).rms_px;
+        if (p.landmark_prior_expected) {
+            const double n = double(in.landmarks.size());
+            rms_ref_px_ *= std::sqrt(2 * n / std::max(1.0, 2 * n - 6));
+        }
+    }
+    double operator()(const Pose& T) const {
+        if (!use_) return 0;
+        const double to_ref = double(kPriorReferenceWidthPx) / in_.camera.width;
+        const double excess = std::max(0.0, (reprojection_rms_px(in_.landmarks, in_.camera, T) - rms_ref_px_) * to_ref -
+                                                p_.landmark_prior_tolerance_px);
+        return p_.landmark_prior_weight * excess * excess;
+    }
+
+private:
+    const PhotoInput& in_;
+    const RegistrationParams& p_;
+    bool use_ = false;
+    double rms_ref_px_ = 0;  // the fit's rms, or the truth's expected rms
+};
+
 }  // namespace
+
+Registration::PoseScore Registration::score(const PhotoInput& in, const Pose& T, const Pose& T_reference,
+                                            const StageParams& stage) {
+    Scorer scorer(in, params_, *renderer_);
+    const Eigen::Vector3d pivot_world = scorer.find_pivot_world(T_reference);
+    const Eigen::Vector3d pivot_cam = T_reference.topLeftCorner<3, 3>() * pivot_world + T_reference.topRightCorner<3, 1>();
+    scorer.set_depth(pivot_cam.z());
+    const LandmarkPrior prior(in, params_);
+    PoseScore s;
+    s.similarity = scorer.similarity(T, stage);
+    s.cost = -s.similarity + prior(T);
+    return s;
+}
 
 SimilaritySweep Registration::sweep(const PhotoInput& in, const Pose& T_center, const StageParams& stage, double range_mm,
                                     double range_deg, int steps) {
@@ -497,9 +561,7 @@ RegistrationResult Registration::run(const PhotoInput& in, const Progress* progr
         for (size_t i = 1; i < fits.size(); ++i) alternatives.push_back(fits[i].T_camera_from_world);
     }
     res.initial_T_camera_from_world = T0;
-    const bool use_prior = params_.landmark_prior_weight > 0 && in.landmarks.size() >= 4;
-    double rms_landmark_fit = 0;
-    if (use_prior) rms_landmark_fit = fit_pose_pnp(in.landmarks, K).rms_px;
+    const LandmarkPrior prior(in, params_);
     res.initial_landmark_rms_px = reprojection_rms_px(in.landmarks, K, T0);
 
     Scorer scorer(in, params_, *renderer_);
@@ -519,14 +581,7 @@ RegistrationResult Registration::run(const PhotoInput& in, const Progress* progr
     auto evaluate = [&](const PoseParams& x, const StageParams& st, double& similarity) {
         const Pose T = apply_params(T0, pivot_cam, x);
         similarity = scorer.similarity(T, st);
-        double cost = -similarity;
-        if (use_prior) {
-            const double to_ref = double(kPriorReferenceWidthPx) / K.width;
-            const double excess = std::max(0.0, (reprojection_rms_px(in.landmarks, K, T) - rms_landmark_fit) * to_ref -
-                                                    params_.landmark_prior_tolerance_px);
-            cost += params_.landmark_prior_weight * excess * excess;
-        }
-        return cost;
+        return -similarity + prior(T);
     };
 
     auto run_stage = [&](const StageParams& st, int start_index, const PoseParams& x0, double& best_sim) {

@@ -50,7 +50,17 @@ struct RegistrationParams {
     /// 375 px width. Holds depth and tilt, which a single photo barely constrains. 0 disables.
     double landmark_prior_weight = 0.01;
     double landmark_prior_tolerance_px = 1.0;
+    /// Measure the excess from the rms the true pose is expected to have, not from the fit's:
+    /// a 6-dof fit to n noisy pairs absorbs part of the noise, so the truth's rms is about
+    /// rms_fit * sqrt(2n / (2n - 6)) (twice the fit's for n = 4). Without this the prior pulls
+    /// every run towards the landmark pose.
+    bool landmark_prior_expected = false;
     double sample_distance_mm = 1.0;
+    /// What the rendering contributes to the similarity: (1 - w) * shading + w * relief, where
+    /// relief is the negated depth of the first surface hit (1 unit per 10 mm); after the
+    /// high-pass it is the local sulcal depth, which does not depend on where the light was.
+    /// 0: shading only (the seed).
+    double depth_weight = 0.0;
     /// Rendering is cropped to the ROI's bounding box plus this fraction of the working width
     /// on each side (context for the blurs). Larger than 1 renders the whole frame.
     double roi_margin_fraction = 0.12;
@@ -135,6 +145,14 @@ public:
     /// The similarity landscape about `T_center` at one stage's size and blur (diagnosis).
     SimilaritySweep sweep(const PhotoInput& in, const Pose& T_center, const StageParams& stage, double range_mm = 10,
                           double range_deg = 10, int steps = 41);
+    /// Similarity and cost (with the landmark prior) of pose `T` as the optimiser sees them at
+    /// `stage`, with the pivot and blur depth taken from `T_reference` (the run's start). The
+    /// evaluation scores the true pose with it: a final cost below the truth's means the
+    /// similarity, not the search, limits accuracy.
+    struct PoseScore {
+        double similarity = 0, cost = 0;
+    };
+    PoseScore score(const PhotoInput& in, const Pose& T, const Pose& T_reference, const StageParams& stage);
     const RegistrationParams& params() const { return params_; }
     /// The renderer used for the similarity (registration style), e.g. for depth lookups.
     Renderer& renderer() { return *renderer_; }
