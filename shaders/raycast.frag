@@ -47,6 +47,8 @@ uniform float u_diffuse;
 uniform float u_term;
 uniform float u_cov;
 uniform bool u_shading;
+uniform bool u_directional;                 // distant light from u_light_world, else a headlight
+uniform vec3 u_light_world;
 uniform bool u_has_mesh;
 
 float vol(int l, vec3 p) {
@@ -207,7 +209,7 @@ void main() {
                         const vec3 gw = transpose(mat3(u_index_from_world[l])) * gi;
                         const float gn = length(gw);
                         if (grad_op) a *= gradient_factor(l, gn * u_grad_scale[l]);
-                        if (u_shading) shade = u_ambient + u_diffuse * (gn > 1e-6 ? abs(dot(gw, dir_world)) / gn : 0.0);
+                        if (u_shading) shade = u_ambient + u_diffuse * (gn > 1e-6 ? abs(dot(gw, u_directional ? u_light_world : dir_world)) / gn : 0.0);
                     }
                     const float a_step = a >= 1.0 ? 1.0 : 1.0 - pow(1.0 - a, step);
                     c_sum += a_step * e.rgb * shade;

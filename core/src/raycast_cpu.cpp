@@ -196,6 +196,11 @@ public:
         f.cam_index = (index_from_world_ * Tw.topRightCorner<3, 1>().cast<float>().homogeneous()).head<3>();
         f.cam_z_axis_world = T.block<1, 3>(2, 0).cast<float>();  // row 2 of R: camera z in world
         f.cam_t_z = float(T(2, 3));
+        f.directional_light = opt.directional_light;
+        f.light_world = (f.R_world_from_camera *
+                         Eigen::Vector3d(opt.light_direction_camera[0], opt.light_direction_camera[1], opt.light_direction_camera[2])
+                             .cast<float>())
+                            .normalized();
         f.cam_world = Tw.topRightCorner<3, 1>().cast<float>();
         const int w = K.width;
         // Square-ish tiles: neighbouring rays in both directions read the same bricks, which
@@ -225,6 +230,8 @@ private:
         Eigen::Vector3f cam_world;
         Eigen::Vector3f cam_z_axis_world;
         float cam_t_z;
+        bool directional_light;
+        Eigen::Vector3f light_world;  // unit, scene towards the light (directional only)
     };
 
     // Trilinear sample of the quantised volume at index-space p (must be inside [0, d-1)).
@@ -345,7 +352,8 @@ private:
                         const float gn = gw.norm();
                         if (grad_op) a *= baked_.gradient_factor(gn * grad_scale_);
                         if (opt.shading) {
-                            const float lambert = gn > 1e-6f ? std::abs(gw.dot(dir_world)) / gn : 0.f;
+                            const Eigen::Vector3f& light = f.directional_light ? f.light_world : dir_world;
+                            const float lambert = gn > 1e-6f ? std::abs(gw.dot(light)) / gn : 0.f;
                             shade = float(opt.ambient) + float(opt.diffuse) * lambert;
                         }
                     }

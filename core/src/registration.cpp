@@ -48,6 +48,15 @@ RegistrationParams RegistrationParams::defaults() {
     p.final_stages = {
         {"final-fwhm2", 2.0, 1.0, 1.0, 375, 80, 0.05, 0.05},
     };
+    // The photo's light is estimated before the final stages and again at the refined pose
+    // (with a headlight, NMI peaked 1.4 mm off the truth on photos lit from aside; 0.45 mm
+    // with the estimate), linear binning and a robust range make the landscape smooth
+    // (evaluation of 2026-11-22: MRE 1.50 -> 1.22 mm, success 94 -> 100 % on 8 cases x 2;
+    // 1.38 -> 0.82 mm on 12 other cases; docs/registration.md).
+    p.binning = "linear";
+    p.robust_range = true;
+    p.estimate_light = true;
+    p.light_rounds = 2;
     return p;
 }
 
@@ -83,6 +92,10 @@ void RegistrationParams::validate(const std::string& ctx) const {
     if (!(sample_distance_mm >= 0.1 && sample_distance_mm <= 5)) bad("sample_distance_mm must be 0.1..5");
     if (!(roi_margin_fraction >= 0 && roi_margin_fraction <= 2)) bad("roi_margin_fraction must be 0..2");
     if (!(depth_weight >= 0 && depth_weight <= 1)) bad("depth_weight must be 0..1");
+    if (!(light_max_offset >= 0 && light_max_offset <= 2)) bad("light_max_offset must be 0..2");
+    if (light_grid < 1 || light_grid > 15) bad("light_grid must be 1..15");
+    if (light_rounds < 1 || light_rounds > 5) bad("light_rounds must be 1..5");
+    if (binning != "hard" && binning != "linear") bad("binning must be \"hard\" or \"linear\"");
     if (starts.empty()) bad("at least one start");
     if (search_stages.empty() && final_stages.empty()) bad("at least one stage");
     if (keep_best < 1) bad("keep_best must be >= 1");
@@ -133,6 +146,12 @@ json to_json(const RegistrationParams& p) {
     j["landmark_prior_expected"] = p.landmark_prior_expected;
     j["sample_distance_mm"] = p.sample_distance_mm;
     j["roi_margin_fraction"] = p.roi_margin_fraction;
+    j["binning"] = p.binning;
+    j["robust_range"] = p.robust_range;
+    j["estimate_light"] = p.estimate_light;
+    j["light_max_offset"] = p.light_max_offset;
+    j["light_grid"] = p.light_grid;
+    j["light_rounds"] = p.light_rounds;
     j["depth_weight"] = p.depth_weight;
     j["starts"] = p.starts;
     j["keep_best"] = p.keep_best;
@@ -159,6 +178,12 @@ RegistrationParams registration_params_from_json(const json& j, const std::strin
         p.landmark_prior_expected = j.value("landmark_prior_expected", p.landmark_prior_expected);
         p.sample_distance_mm = j.value("sample_distance_mm", p.sample_distance_mm);
         p.roi_margin_fraction = j.value("roi_margin_fraction", p.roi_margin_fraction);
+        p.binning = j.value("binning", p.binning);
+        p.robust_range = j.value("robust_range", p.robust_range);
+        p.estimate_light = j.value("estimate_light", p.estimate_light);
+        p.light_max_offset = j.value("light_max_offset", p.light_max_offset);
+        p.light_grid = j.value("light_grid", p.light_grid);
+        p.light_rounds = j.value("light_rounds", p.light_rounds);
         p.depth_weight = j.value("depth_weight", p.depth_weight);
         if (j.contains("starts")) p.starts = j.at("starts").get<std::vector<PoseParams>>();
         p.keep_best = j.value("keep_best", p.keep_best);
@@ -190,6 +215,7 @@ json result_to_json(const RegistrationResult& r) {
     j["evaluations"] = r.evaluations;
     j["seconds"] = r.seconds;
     j["pivot_world_mm"] = {r.pivot_world_mm.x(), r.pivot_world_mm.y(), r.pivot_world_mm.z()};
+    j["light_direction_camera"] = {r.light_direction_camera.x(), r.light_direction_camera.y(), r.light_direction_camera.z()};
     j["stages"] = json::array();
     for (const auto& s : r.stages)
         j["stages"].push_back({{"name", s.name}, {"start", s.start}, {"fwhm_mm", s.params.fwhm_mm},
@@ -331,6 +357,7 @@ public:
     Scorer(const PhotoInput& in, const RegistrationParams& p, Renderer& r)
         : in_(in), p_(p), renderer_(r), sim_(p.bins), metric_(metric_from_name(p.metric)) {
         ropt_.sample_distance_mm = p.sample_distance_mm;
+        sim_.set_linear_binning(p.binning == "linear");
         ropt_.want_rgb = false;
         ropt_.want_depth = true;
     }
@@ -401,6 +428,16 @@ public:
         return Tinv.topLeftCorner<3, 3>() * pivot_cam + Tinv.topRightCorner<3, 1>();
     }
 
+    /// Light offsets (x, y): a distant light from camera-frame direction (x, y, -1); nullopt: headlight.
+    void set_light(std::optional<std::array<double, 2>> xy) {
+        ropt_.directional_light = xy.has_value();
+        if (xy) ropt_.light_direction_camera = {(*xy)[0], (*xy)[1], -1.0};
+    }
+    Eigen::Vector3d light_direction() const {
+        if (!ropt_.directional_light) return {0, 0, -1};
+        return Eigen::Vector3d(ropt_.light_direction_camera[0], ropt_.light_direction_camera[1], ropt_.light_direction_camera[2]).normalized();
+    }
+
     /// The depth at which blur FWHM in mm is converted to pixels.
     void set_depth(double depth_mm) {
         // A pose looking away from the brain puts the pivot behind the camera; blur widths
@@ -450,7 +487,26 @@ private:
         blur_fwhm_mm(dst, lowpass_, p_.highpass_fwhm_mm, L.K.fx, depth_mm_);
         dst -= lowpass_;
         double mn = 0, mx = 0;
-        cv::minMaxLoc(dst, &mn, &mx, nullptr, nullptr, L.photo.valid);
+        if (p_.robust_range) {
+            // 1st and 99th percentiles: the extremes are single noisy pixels, and a range that
+            // jumps between poses makes the histogram (and NMI) jump with it.
+            vals_.clear();
+            for (int y = 0; y < dst.rows; ++y) {
+                const float* d = dst.ptr<float>(y);
+                const uint8_t* v = L.photo.valid.ptr<uint8_t>(y);
+                for (int x = 0; x < dst.cols; ++x)
+                    if (v[x]) vals_.push_back(d[x]);
+            }
+            if (vals_.size() > 20) {
+                const size_t a = vals_.size() / 100, b = vals_.size() - 1 - vals_.size() / 100;
+                std::nth_element(vals_.begin(), vals_.begin() + long(a), vals_.end());
+                mn = vals_[a];
+                std::nth_element(vals_.begin(), vals_.begin() + long(b), vals_.end());
+                mx = vals_[b];
+            }
+        } else {
+            cv::minMaxLoc(dst, &mn, &mx, nullptr, nullptr, L.photo.valid);
+        }
         if (mx - mn < 1e-9) mx = mn + 1e-9;
         dst.convertTo(dst, CV_32F, 1.0 / (mx - mn), -mn / (mx - mn));
     }
@@ -467,6 +523,7 @@ private:
     std::map<int, Level> levels_;
     RenderImage img_;
     cv::Mat rendered_blur_, lowpass_, mixed_;
+    std::vector<float> vals_;
     double depth_mm_ = 300;
 };
 
@@ -501,8 +558,10 @@ private:
 }  // namespace
 
 Registration::PoseScore Registration::score(const PhotoInput& in, const Pose& T, const Pose& T_reference,
-                                            const StageParams& stage) {
+                                            const StageParams& stage, std::optional<Eigen::Vector3d> light) {
     Scorer scorer(in, params_, *renderer_);
+    if (light && std::abs((*light).z()) > 1e-9)
+        scorer.set_light(std::array<double, 2>{-(*light).x() / (*light).z(), -(*light).y() / (*light).z()});
     const Eigen::Vector3d pivot_world = scorer.find_pivot_world(T_reference);
     const Eigen::Vector3d pivot_cam = T_reference.topLeftCorner<3, 3>() * pivot_world + T_reference.topRightCorner<3, 1>();
     scorer.set_depth(pivot_cam.z());
@@ -656,15 +715,43 @@ RegistrationResult Registration::run(const PhotoInput& in, const Progress* progr
     // Final search and re-optimisation of the best few.
     Candidate best = candidates.front();
     double best_sim = 0;
+    // The light: a grid over its direction at pose x, scored at the first final stage's level.
+    auto estimate_light = [&](const PoseParams& x) {
+        const StageParams& st = params_.final_stages.front();
+        const Pose T = apply_params(T0, pivot_cam, x);
+        std::array<double, 2> best_xy{0, 0};
+        double best_s = -1e300;
+        auto try_grid = [&](std::array<double, 2> centre, double half, int n) {
+            for (int i = 0; i < n; ++i)
+                for (int j = 0; j < n; ++j) {
+                    const double gx = n > 1 ? centre[0] - half + 2 * half * i / (n - 1) : centre[0];
+                    const double gy = n > 1 ? centre[1] - half + 2 * half * j / (n - 1) : centre[1];
+                    scorer.set_light(std::array<double, 2>{gx, gy});
+                    const double s = scorer.similarity(T, st);
+                    ++evals_done;
+                    if (s > best_s) best_s = s, best_xy = {gx, gy};
+                }
+        };
+        const double m = params_.light_max_offset;
+        try_grid({0, 0}, m, params_.light_grid);
+        const double spacing = params_.light_grid > 1 ? 2 * m / (params_.light_grid - 1) : m;
+        try_grid(best_xy, spacing / 2, 3);
+        scorer.set_light(best_xy);
+    };
     if (!params_.final_stages.empty()) {
-        best.cost = 1e300;
-        for (size_t c = 0; c < candidates.size(); ++c) {
-            PoseParams x = candidates[c].x;
-            double cost = 0, s = 0;
-            for (const auto& st : params_.final_stages) std::tie(x, cost) = run_stage(st, int(c), x, s);
-            if (cost < best.cost) {
-                best = {x, cost};
-                best_sim = s;
+        const int rounds = params_.estimate_light ? params_.light_rounds : 1;
+        for (int round = 0; round < rounds; ++round) {
+            if (params_.estimate_light) estimate_light(round == 0 ? candidates.front().x : best.x);
+            if (round > 0) candidates = {best};  // later rounds refine the winner only
+            best.cost = 1e300;
+            for (size_t c = 0; c < candidates.size(); ++c) {
+                PoseParams x = candidates[c].x;
+                double cost = 0, s = 0;
+                for (const auto& st : params_.final_stages) std::tie(x, cost) = run_stage(st, int(c), x, s);
+                if (cost < best.cost) {
+                    best = {x, cost};
+                    best_sim = s;
+                }
             }
         }
     } else {
@@ -672,6 +759,7 @@ RegistrationResult Registration::run(const PhotoInput& in, const Progress* progr
     }
 
     res.T_camera_from_world = apply_params(T0, pivot_cam, best.x);
+    res.light_direction_camera = scorer.light_direction();
     // Report the similarity at the final pose at the last stage's level.
     {
         const StageParams& last = !params_.final_stages.empty() ? params_.final_stages.back() : params_.search_stages.back();

@@ -56,6 +56,37 @@ size_t Similarity::joint_histogram(const cv::Mat& a, const cv::Mat& b, const cv:
     return count;
 }
 
+size_t Similarity::joint_histogram_linear(const cv::Mat& a, const cv::Mat& b, const cv::Mat& mask) {
+    CV_Assert(a.type() == CV_32F && b.type() == CV_32F && a.size() == b.size());
+    CV_Assert(mask.empty() || (mask.type() == CV_8U && mask.size() == a.size()));
+    const int B = bins_;
+    joint_linear_.assign(size_t(B) * B, 0.f);
+    // Bin centres at 0 .. B-1 over [0, 1]: value v sits at v * (B - 1).
+    const float scale = float(B - 1);
+    float* h = joint_linear_.data();
+    size_t count = 0;
+    for (int y = 0; y < a.rows; ++y) {
+        const float* pa = a.ptr<float>(y);
+        const float* pb = b.ptr<float>(y);
+        const uint8_t* pm = mask.empty() ? nullptr : mask.ptr<uint8_t>(y);
+        for (int x = 0; x < a.cols; ++x) {
+            if (pm && !pm[x]) continue;
+            const float fa = std::clamp(pa[x], 0.f, 1.f) * scale, fb = std::clamp(pb[x], 0.f, 1.f) * scale;
+            const int ia = std::min(int(fa), B - 2), ib = std::min(int(fb), B - 2);
+            const float wa = fa - float(ia), wb = fb - float(ib);
+            float* row0 = h + size_t(ia) * B + ib;
+            float* row1 = row0 + B;
+            row0[0] += (1 - wa) * (1 - wb);
+            row0[1] += (1 - wa) * wb;
+            row1[0] += wa * (1 - wb);
+            row1[1] += wa * wb;
+            ++count;
+        }
+    }
+    n_ = count;
+    return count;
+}
+
 void Similarity::entropies(double& ha, double& hb, double& hab) const {
     ha = hb = hab = 0;
     if (n_ == 0) return;
@@ -64,8 +95,8 @@ void Similarity::entropies(double& ha, double& hb, double& hab) const {
     std::vector<double> ma(size_t(B), 0.0), mb(size_t(B), 0.0);
     for (int i = 0; i < B; ++i)
         for (int j = 0; j < B; ++j) {
-            const uint32_t c = joint_[size_t(i * B + j)];
-            if (!c) continue;
+            const double c = linear_ ? double(joint_linear_[size_t(i * B + j)]) : double(joint_[size_t(i * B + j)]);
+            if (c <= 0) continue;
             const double p = c * inv;
             hab -= p * std::log(p);
             ma[size_t(i)] += p;
@@ -78,14 +109,14 @@ void Similarity::entropies(double& ha, double& hb, double& hab) const {
 }
 
 double Similarity::nmi(const cv::Mat& a, const cv::Mat& b, const cv::Mat& mask) {
-    if (joint_histogram(a, b, mask) < 2) return 1.0;
+    if ((linear_ ? joint_histogram_linear(a, b, mask) : joint_histogram(a, b, mask)) < 2) return 1.0;
     double ha, hb, hab;
     entropies(ha, hb, hab);
     return hab > 0 ? (ha + hb) / hab : 1.0;  // two constant images: no information either way
 }
 
 double Similarity::mi(const cv::Mat& a, const cv::Mat& b, const cv::Mat& mask) {
-    if (joint_histogram(a, b, mask) < 2) return 0.0;
+    if ((linear_ ? joint_histogram_linear(a, b, mask) : joint_histogram(a, b, mask)) < 2) return 0.0;
     double ha, hb, hab;
     entropies(ha, hb, hab);
     return ha + hb - hab;

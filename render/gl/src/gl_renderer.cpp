@@ -79,7 +79,7 @@ struct Layer {
 struct RaycastProgram {
     Program prog;
     GLint R = -1, cam = -1, ifw = -1, dims = -1, box_lo = -1, box_hi = -1, weight = -1, grad_scale = -1, grad_n = -1,
-          grad_pts = -1, iso = -1, step = -1, ambient = -1, diffuse = -1, term = -1, cov = -1, shading = -1, has_mesh = -1;
+          grad_pts = -1, iso = -1, step = -1, ambient = -1, diffuse = -1, term = -1, cov = -1, shading = -1, has_mesh = -1, directional = -1, light_world = -1;
 };
 
 class GlRenderer final : public FusionRenderer {
@@ -357,6 +357,15 @@ public:
             glUniform1f(P.term, float(opt.early_termination_alpha));
             glUniform1f(P.cov, float(opt.coverage_alpha));
             glUniform1i(P.shading, opt.shading ? 1 : 0);
+            {
+                const Eigen::Matrix3d R_world_from_camera = T.topLeftCorner<3, 3>().transpose();
+                const Eigen::Vector3f L = (R_world_from_camera * Eigen::Vector3d(opt.light_direction_camera[0], opt.light_direction_camera[1],
+                                                                                 opt.light_direction_camera[2]))
+                                              .normalized()
+                                              .cast<float>();
+                glUniform1i(P.directional, opt.directional_light ? 1 : 0);
+                glUniform3f(P.light_world, L.x(), L.y(), L.z());
+            }
             glUniform1i(P.has_mesh, mesh_triangles_ > 0 ? 1 : 0);
             glActiveTexture(GL_TEXTURE0);
             glBindTexture(GL_TEXTURE_2D, rays_.get());
@@ -410,6 +419,8 @@ private:
         P.term = loc("u_term");
         P.cov = loc("u_cov");
         P.shading = loc("u_shading");
+        P.directional = loc("u_directional");
+        P.light_world = loc("u_light_world");
         P.has_mesh = loc("u_has_mesh");
         return programs_.emplace(layers, std::move(P)).first->second;
     }

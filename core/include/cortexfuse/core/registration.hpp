@@ -3,6 +3,7 @@
 // the current pose, compared with the photo by NMI inside the ROI, and the pose is optimised by
 // the seed's multi-stage Downhill Simplex. Every stage's parameters are data (saved with the
 // result), every stage reports progress, can be cancelled, and is timed.
+#include <array>
 #include <functional>
 #include <memory>
 #include <nlohmann/json.hpp>
@@ -39,6 +40,22 @@ struct RegistrationParams {
     std::string photo_channel = "grey";
     std::string metric = "nmi";
     int bins = 32;
+    /// Joint histogram binning: "linear" (partial volume: smooth in the pose) or "hard".
+    std::string binning = "hard";
+    /// After the high-pass, rescale by the 1st-99th percentiles inside the mask (true) or by
+    /// the minimum and maximum (false, noisy: one pixel moves the whole histogram).
+    bool robust_range = false;
+    /// The photo's light is rarely at the lens (an OR lamp or the microscope's light): with a
+    /// headlight rendering, NMI peaks about 1.4 mm off the truth on phantom photos lit from up to
+    /// 25 deg aside, 0.4 mm when lit from the lens. When on, after the search stages the light
+    /// direction is estimated at the best pose by a grid over the offsets (x, y) of the
+    /// camera-frame direction (x, y, -1), |x|, |y| <= light_max_offset, and the final stages
+    /// render with it; each later round re-estimates it at the refined pose and re-runs the
+    /// final stages.
+    bool estimate_light = false;
+    double light_max_offset = 0.5;
+    int light_grid = 5;    // points per axis of the first grid (a finer 3 x 3 follows)
+    int light_rounds = 1;  // estimate + final stages, repeated
     bool mask_glare = true;          // drop specular glare, gauze and drapes from the similarity mask
     /// Drop vessels and blood: pixels more saturated or darker than the ROI's median by this many
     /// median absolute deviations. 0 disables.
@@ -114,6 +131,9 @@ struct RegistrationResult {
     std::vector<TracePoint> trace;  // every evaluation, for the convergence plot
     RegistrationParams params;
     Eigen::Vector3d pivot_world_mm = Eigen::Vector3d::Zero();
+    /// The light direction the final stages rendered with (camera frame, towards the light);
+    /// (0, 0, -1) with a headlight.
+    Eigen::Vector3d light_direction_camera{0, 0, -1};
 };
 
 nlohmann::json result_to_json(const RegistrationResult& r);
@@ -152,7 +172,9 @@ public:
     struct PoseScore {
         double similarity = 0, cost = 0;
     };
-    PoseScore score(const PhotoInput& in, const Pose& T, const Pose& T_reference, const StageParams& stage);
+    /// `light_direction_camera`: a distant light (a result's estimate); nullopt: the headlight.
+    PoseScore score(const PhotoInput& in, const Pose& T, const Pose& T_reference, const StageParams& stage,
+                    std::optional<Eigen::Vector3d> light_direction_camera = std::nullopt);
     const RegistrationParams& params() const { return params_; }
     /// The renderer used for the similarity (registration style), e.g. for depth lookups.
     Renderer& renderer() { return *renderer_; }

@@ -1,4 +1,5 @@
 #pragma once
+#include <array>
 // The renderer interface: one for the CPU ray caster here, one for the EGL/GLSL backend.
 // A renderer owns a prepared copy of the volume (quantised, with an empty-space map) and
 // renders it from a pinhole camera pose. Thread contract: one render() at a time per
@@ -18,6 +19,11 @@ struct RenderOptions {
     double ambient = 0.2;                // Lambert shading from a headlight at the camera
     double diffuse = 0.8;
     bool shading = true;
+    /// Where the Lambert light comes from: false = a headlight along each ray (the seed); true =
+    /// a distant light from `light_direction_camera` (camera frame, pointing from the scene
+    /// towards the light). Registration estimates it from the photo: the lamp is rarely at the lens.
+    bool directional_light = false;
+    std::array<double, 3> light_direction_camera{0, 0, -1};
     double early_termination_alpha = 0.98;
     double coverage_alpha = 0.5;          // coverage mask and depth: where opacity reaches this
     bool want_rgb = true;                 // skip work the caller does not need
