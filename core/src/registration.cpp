@@ -716,9 +716,12 @@ RegistrationResult Registration::run(const PhotoInput& in, const Progress* progr
     Candidate best = candidates.front();
     double best_sim = 0;
     // The light: a grid over its direction at pose x, scored at the first final stage's level.
-    auto estimate_light = [&](const PoseParams& x) {
+    auto estimate_light = [&](const PoseParams& x, int candidate) {
+        const auto t0 = Clock::now();
         const StageParams& st = params_.final_stages.front();
         const Pose T = apply_params(T0, pivot_cam, x);
+        const int stage_index = int(res.stages.size());
+        int renders = 0;
         std::array<double, 2> best_xy{0, 0};
         double best_s = -1e300;
         auto try_grid = [&](std::array<double, 2> centre, double half, int n) {
@@ -729,6 +732,8 @@ RegistrationResult Registration::run(const PhotoInput& in, const Progress* progr
                     scorer.set_light(std::array<double, 2>{gx, gy});
                     const double s = scorer.similarity(T, st);
                     ++evals_done;
+                    ++renders;
+                    res.trace.push_back({evals_done, stage_index, s, -s});
                     if (s > best_s) best_s = s, best_xy = {gx, gy};
                 }
         };
@@ -737,11 +742,21 @@ RegistrationResult Registration::run(const PhotoInput& in, const Progress* progr
         const double spacing = params_.light_grid > 1 ? 2 * m / (params_.light_grid - 1) : m;
         try_grid(best_xy, spacing / 2, 3);
         scorer.set_light(best_xy);
+        // One report like a stage's (evaluations, best similarity, time): the trace plots it too.
+        StageReport rep;
+        rep.name = "light";
+        rep.start = candidate;
+        rep.params = st;
+        rep.best_similarity = best_s;
+        rep.best_cost = -best_s;
+        rep.evaluations = renders;
+        rep.seconds = seconds_since(t0);
+        res.stages.push_back(rep);
     };
     if (!params_.final_stages.empty()) {
         const int rounds = params_.estimate_light ? params_.light_rounds : 1;
         for (int round = 0; round < rounds; ++round) {
-            if (params_.estimate_light) estimate_light(round == 0 ? candidates.front().x : best.x);
+            if (params_.estimate_light) estimate_light(round == 0 ? candidates.front().x : best.x, 0);
             if (round > 0) candidates = {best};  // later rounds refine the winner only
             best.cost = 1e300;
             for (size_t c = 0; c < candidates.size(); ++c) {

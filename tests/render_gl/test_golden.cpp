@@ -60,6 +60,10 @@ TEST(GlGolden, SphereOptionsVariants) {
     opt.early_termination_alpha = 0.9;
     opt.coverage_alpha = 0.3;
     expect_same_pictures(v, preset_transfer_function("skin"), nullptr, K, T, opt, "skin, 1.7 mm");
+    opt = RenderOptions{};
+    opt.directional_light = true;
+    opt.light_direction_camera = {0.4, -0.3, -1};
+    expect_same_pictures(v, preset_transfer_function("cortex_t1"), nullptr, K, T, opt, "distant light from aside");
 }
 
 TEST(GlGolden, SlabsWithMaskAndDistortion) {
