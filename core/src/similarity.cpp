@@ -32,12 +32,14 @@ void Similarity::set_bins(int bins) {
     for (auto& s : scratch_) s.assign(size_t(bins) * bins, 0);
 }
 
-size_t Similarity::joint_histogram(const cv::Mat& a, const cv::Mat& b, const cv::Mat& mask) {
+namespace {
+
+/// Calls add(va, vb, count) for every pixel pair where the mask is set (all when empty), values
+/// clamped to [0, 1]; returns how many. The one traversal both binnings share.
+template <class Add>
+size_t for_each_masked_pair(const cv::Mat& a, const cv::Mat& b, const cv::Mat& mask, Add&& add) {
     CV_Assert(a.type() == CV_32F && b.type() == CV_32F && a.size() == b.size());
     CV_Assert(mask.empty() || (mask.type() == CV_8U && mask.size() == a.size()));
-    for (auto& s : scratch_) std::fill(s.begin(), s.end(), 0u);
-    const float scale = float(bins_) - 1e-3f;
-    const int B = bins_;
     size_t count = 0;
     for (int y = 0; y < a.rows; ++y) {
         const float* pa = a.ptr<float>(y);
@@ -45,44 +47,44 @@ size_t Similarity::joint_histogram(const cv::Mat& a, const cv::Mat& b, const cv:
         const uint8_t* pm = mask.empty() ? nullptr : mask.ptr<uint8_t>(y);
         for (int x = 0; x < a.cols; ++x) {
             if (pm && !pm[x]) continue;
-            const int ia = int(std::clamp(pa[x], 0.f, 1.f) * scale);
-            const int ib = int(std::clamp(pb[x], 0.f, 1.f) * scale);
-            ++scratch_[count & 3][size_t(ia * B + ib)];
+            add(std::clamp(pa[x], 0.f, 1.f), std::clamp(pb[x], 0.f, 1.f), count);
             ++count;
         }
     }
+    return count;
+}
+
+}  // namespace
+
+size_t Similarity::joint_histogram(const cv::Mat& a, const cv::Mat& b, const cv::Mat& mask) {
+    for (auto& s : scratch_) std::fill(s.begin(), s.end(), 0u);
+    const float scale = float(bins_) - 1e-3f;
+    const int B = bins_;
+    const size_t count = for_each_masked_pair(a, b, mask, [&](float va, float vb, size_t k) {
+        ++scratch_[k & 3][size_t(int(va * scale) * B + int(vb * scale))];
+    });
     for (size_t i = 0; i < joint_.size(); ++i) joint_[i] = scratch_[0][i] + scratch_[1][i] + scratch_[2][i] + scratch_[3][i];
     n_ = count;
     return count;
 }
 
 size_t Similarity::joint_histogram_linear(const cv::Mat& a, const cv::Mat& b, const cv::Mat& mask) {
-    CV_Assert(a.type() == CV_32F && b.type() == CV_32F && a.size() == b.size());
-    CV_Assert(mask.empty() || (mask.type() == CV_8U && mask.size() == a.size()));
     const int B = bins_;
     joint_linear_.assign(size_t(B) * B, 0.f);
     // Bin centres at 0 .. B-1 over [0, 1]: value v sits at v * (B - 1).
     const float scale = float(B - 1);
     float* h = joint_linear_.data();
-    size_t count = 0;
-    for (int y = 0; y < a.rows; ++y) {
-        const float* pa = a.ptr<float>(y);
-        const float* pb = b.ptr<float>(y);
-        const uint8_t* pm = mask.empty() ? nullptr : mask.ptr<uint8_t>(y);
-        for (int x = 0; x < a.cols; ++x) {
-            if (pm && !pm[x]) continue;
-            const float fa = std::clamp(pa[x], 0.f, 1.f) * scale, fb = std::clamp(pb[x], 0.f, 1.f) * scale;
-            const int ia = std::min(int(fa), B - 2), ib = std::min(int(fb), B - 2);
-            const float wa = fa - float(ia), wb = fb - float(ib);
-            float* row0 = h + size_t(ia) * B + ib;
-            float* row1 = row0 + B;
-            row0[0] += (1 - wa) * (1 - wb);
-            row0[1] += (1 - wa) * wb;
-            row1[0] += wa * (1 - wb);
-            row1[1] += wa * wb;
-            ++count;
-        }
-    }
+    const size_t count = for_each_masked_pair(a, b, mask, [&](float va, float vb, size_t) {
+        const float fa = va * scale, fb = vb * scale;
+        const int ia = std::min(int(fa), B - 2), ib = std::min(int(fb), B - 2);
+        const float wa = fa - float(ia), wb = fb - float(ib);
+        float* row0 = h + size_t(ia) * B + ib;
+        float* row1 = row0 + B;
+        row0[0] += (1 - wa) * (1 - wb);
+        row0[1] += (1 - wa) * wb;
+        row1[0] += wa * (1 - wb);
+        row1[1] += wa * wb;
+    });
     n_ = count;
     return count;
 }
