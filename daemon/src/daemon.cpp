@@ -652,8 +652,15 @@ void Daemon::Impl::register_endpoints() {
                       std::sort(a.begin(), a.end());
                       return json_ok({{"folders", a}});
                   }});
-    registry.add({"GET", "/api/render/presets", "render.presets", Access::read, "Transfer function presets",
-                  [json_ok](const Request&) { return json_ok({{"presets", preset_names()}}); }});
+    registry.add({"GET", "/api/render/presets", "render.presets", Access::read, "Transfer function presets (names and their JSON, the shape POST /api/render takes as tf)",
+                  [json_ok](const Request&) {
+                      nlohmann::json tfs = nlohmann::json::object();
+                      for (const auto& n : preset_names()) tfs[n] = to_json(preset_transfer_function(n));
+                      return json_ok({{"presets", preset_names()}, {"transfer_functions", tfs}});
+                  }});
+    registry.add({"GET", "/api/render/volume", "render.volume", Access::read,
+                  "The rendered MRI's centre and extent (LPS mm) and its brain's box, for placing a camera",
+                  [d, json_ok](const Request&) { return json_ok(d->render->volume_json()); }});
     registry.add({"POST", "/api/render", "render", Access::read, "Render a view off-screen; answers image/jpeg or image/png",
                   [d](const Request& r) {
                       const nlohmann::json body = r.body.is_null() ? nlohmann::json::object() : r.body;

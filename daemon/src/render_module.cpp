@@ -22,6 +22,10 @@ namespace cf::daemon {
 
 namespace {
 using Clock = std::chrono::steady_clock;
+std::string fs_name(const std::string& p) {
+    const auto k = p.find_last_of('/');
+    return k == std::string::npos ? p : p.substr(k + 1);
+}
 double ms_since(Clock::time_point t) { return std::chrono::duration<double, std::milli>(Clock::now() - t).count(); }
 
 ApiError bad(const std::string& field, const std::string& problem) { return ApiError(400, "bad_request", "render " + field + ": " + problem); }
@@ -47,11 +51,102 @@ std::string get_str(const nlohmann::json& r, const char* key, const std::string&
     if (!r[key].is_string()) throw bad(key, "must be a string");
     return r[key].get<std::string>();
 }
+
+/// The `tf` field of a render request: core's transfer-function JSON (the presets' shape), with
+/// the daemon's own limits on top (unknown keys and absurd point counts are refused: the parser
+/// itself ignores extra keys).
+TransferFunction parse_request_tf(const nlohmann::json& j) {
+    if (!j.is_object()) throw bad("tf", "must be a JSON object {units?, colour, opacity, gradient_opacity?, name?}");
+    for (auto it = j.begin(); it != j.end(); ++it) {
+        const std::string& k = it.key();
+        if (k != "name" && k != "units" && k != "colour" && k != "opacity" && k != "gradient_opacity") throw bad("tf." + k, "unknown field");
+    }
+    if (j.contains("name") && !j["name"].is_string()) throw bad("tf.name", "must be a string");
+    if (j.contains("units") && !j["units"].is_string()) throw bad("tf.units", "must be \"normalized\" or \"absolute\"");
+    for (const char* k : {"colour", "opacity", "gradient_opacity"}) {
+        if (!j.contains(k)) {
+            if (std::string(k) != "gradient_opacity") throw bad(std::string("tf.") + k, "missing");
+            continue;
+        }
+        const auto& a = j[k];
+        const std::size_t n = std::string(k) == "colour" ? 4 : 2;
+        if (!a.is_array()) throw bad(std::string("tf.") + k, "must be an array of points");
+        if (a.size() > 256) throw bad(std::string("tf.") + k, std::to_string(a.size()) + " points is more than 256");
+        for (std::size_t i = 0; i < a.size(); ++i) {
+            const auto& p = a[i];
+            if (!p.is_array() || p.size() != n || !std::all_of(p.begin(), p.end(), [](const nlohmann::json& x) { return x.is_number(); }))
+                throw bad(std::string("tf.") + k + "[" + std::to_string(i) + "]", "must be " + std::to_string(n) + " numbers" +
+                                                                         (n == 4 ? " [x, r, g, b]" : " [x, value]"));
+        }
+    }
+    try {
+        return transfer_function_from_json(j, "render tf");
+    } catch (const InputError& e) {
+        throw ApiError(400, "bad_request", e.what());
+    }
+}
+
+}  // namespace
+
+namespace {
+nlohmann::json vec(const Eigen::Vector3d& v) { return nlohmann::json::array({v.x(), v.y(), v.z()}); }
+
+/// Axis-aligned LPS box of a set of corner points: {min, max, centre, extent}.
+nlohmann::json box_json(const Eigen::Vector3d& lo, const Eigen::Vector3d& hi) {
+    return {{"min_lps_mm", vec(lo)}, {"max_lps_mm", vec(hi)}, {"center_lps_mm", vec(0.5 * (lo + hi))}, {"extent_mm", vec(hi - lo)}};
+}
+
+/// The grid's centre (as the standard views use it) and its world box (voxel centres).
+nlohmann::json geometry_json(const VolumeGeometry& g) {
+    Eigen::Vector3d lo = Eigen::Vector3d::Constant(1e300), hi = -lo;
+    for (int c = 0; c < 8; ++c) {
+        const Eigen::Vector3d ijk((c & 1) ? g.dims[0] - 1 : 0, (c & 2) ? g.dims[1] - 1 : 0, (c & 4) ? g.dims[2] - 1 : 0);
+        const Eigen::Vector3d w = g.world_from_index(ijk);
+        lo = lo.cwiseMin(w);
+        hi = hi.cwiseMax(w);
+    }
+    nlohmann::json j = box_json(lo, hi);
+    j["center_lps_mm"] = vec(g.center_world_mm());
+    j["dims"] = g.dims;
+    j["spacing_mm"] = vec(g.spacing_mm);
+    j["radius_mm"] = 0.5 * (hi - lo).norm();
+    return j;
+}
+
+/// The brain mask's box (non-zero voxels), or null when it is empty.
+nlohmann::json mask_bounds_json(const LabelVolume& m) {
+    const auto& g = m.geom;
+    Eigen::Vector3d lo = Eigen::Vector3d::Constant(1e300), hi = -lo;
+    bool any = false;
+    const Eigen::Affine3d W = g.world_from_index();
+    for (int k = 0; k < g.dims[2]; ++k)
+        for (int j = 0; j < g.dims[1]; ++j) {
+            int i0 = -1, i1 = -1;
+            const std::size_t row = g.linear(0, j, k);
+            for (int i = 0; i < g.dims[0]; ++i)
+                if (m.voxels[row + std::size_t(i)]) {
+                    if (i0 < 0) i0 = i;
+                    i1 = i;
+                }
+            if (i0 < 0) continue;
+            any = true;
+            for (int i : {i0, i1}) {
+                const Eigen::Vector3d w = W * Eigen::Vector3d(i, j, k);
+                lo = lo.cwiseMin(w);
+                hi = hi.cwiseMax(w);
+            }
+        }
+    if (!any) return nullptr;
+    nlohmann::json b = box_json(lo, hi);
+    b["radius_mm"] = 0.5 * (hi - lo).norm();
+    return b;
+}
 }  // namespace
 
 struct RenderModule::Job {
     int width = 0, height = 0;
     std::string preset, format, view;
+    TransferFunction tf;
     double opacity = 1, distance_mm = 450, focal_px = 0, sample_mm = 1;
     int quality = 85;
     bool brain_only = true;
@@ -82,20 +177,25 @@ void RenderModule::stop() {
 RenderedImage RenderModule::render(const nlohmann::json& r) {
     if (!r.is_object()) throw ApiError(400, "bad_request", "render: the request must be a JSON object");
     static const std::vector<std::string> known = {"width", "height", "preset", "opacity", "brain_only", "view", "distance_mm",
-                                                   "T_camera_from_world", "camera", "focal_px", "format", "quality", "sample_mm"};
+                                                   "T_camera_from_world", "camera", "focal_px", "format", "quality", "sample_mm", "tf"};
     for (auto it = r.begin(); it != r.end(); ++it)
         if (std::find(known.begin(), known.end(), it.key()) == known.end()) throw bad(it.key(), "unknown field");
     auto job = std::make_shared<Job>();
     job->width = get_int(r, "width", 640, 16, cfg_.render_max_width);
     job->height = get_int(r, "height", 480, 16, cfg_.render_max_height);
+    if (r.contains("tf") && r.contains("preset")) throw bad("tf", "give either preset or tf, not both");
     job->preset = get_str(r, "preset", "cortex_t1");
-    {
+    if (r.contains("tf")) {
+        job->tf = parse_request_tf(r["tf"]);
+        job->preset.clear();
+    } else {
         const auto names = preset_names();
         if (std::find(names.begin(), names.end(), job->preset) == names.end()) {
             std::string list;
             for (const auto& n : names) list += (list.empty() ? "" : ", ") + n;
             throw bad("preset", "'" + job->preset + "' is not a preset (" + list + ")");
         }
+        job->tf = preset_transfer_function(job->preset);
     }
     job->opacity = get_num(r, "opacity", 1.0, 0.0, 1.0);
     if (r.contains("brain_only")) {
@@ -147,7 +247,10 @@ void RenderModule::loop() {
             if (!mask->geom.same_grid(volume->geom)) mask = resample_nearest(*mask, volume->geom);
         }
         log(LogLevel::info, "render", "volume loaded in " + std::to_string(int(ms_since(t0))) + " ms");
+        nlohmann::json info = geometry_json(volume->geom);
+        if (mask) info["brain"] = mask_bounds_json(*mask);
         std::lock_guard lk(mu_);
+        volume_info_ = std::move(info);
         state_ = "ready";
     } catch (const std::exception& e) {
         log(LogLevel::error, "render", std::string("volume not loaded: ") + e.what());
@@ -197,7 +300,7 @@ void RenderModule::loop() {
             const bool use_mask = job->brain_only || !mask.has_value();  // 'masked' is the maskless one without a mask
             auto& r = use_mask ? masked : whole;
             if (!r) r = make(use_mask && mask ? &*mask : nullptr);
-            TransferFunction tf = preset_transfer_function(job->preset);
+            TransferFunction tf = job->tf;
             for (auto& p : tf.opacity) p[1] *= job->opacity;
             r->set_transfer_function(tf);
             Intrinsics K;
@@ -251,6 +354,17 @@ void RenderModule::loop() {
     std::lock_guard lk(mu_);
     thread_done_ = true;
     state_ = "stopped";
+}
+
+nlohmann::json RenderModule::volume_json() const {
+    std::lock_guard lk(mu_);
+    if (state_ == "failed" && volume_info_.is_null()) throw ApiError(503, "unavailable", "render: the volume could not be loaded: " + error_);
+    if (volume_info_.is_null()) throw ApiError(503, "unavailable", "render: the volume is still loading (state " + state_ + "); try again");
+    nlohmann::json j = volume_info_;
+    j["file"] = fs_name(cfg_.t1_path);
+    j["frame"] = "LPS mm (DICOM patient: +x left, +y posterior, +z superior)";
+    j["default_view"] = {{"distance_mm", 450}, {"focal_px", "0.5 * width * distance_mm / 110"}, {"target", "center_lps_mm"}};
+    return j;
 }
 
 nlohmann::json RenderModule::status_json() const {

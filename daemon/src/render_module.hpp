@@ -35,12 +35,16 @@ public:
     void stop();
     /// Validates the request (ApiError 400 naming the field), waits for the volume, renders.
     /// Request fields: width, height (16..renderer.max_*), preset (transfer function preset
-    /// name), opacity (0..1, scales the preset's opacity), brain_only (bool: hide all but the
+    /// name) or tf (a custom transfer function, core's JSON shape), opacity (0..1, scales the preset's opacity), brain_only (bool: hide all but the
     /// brain mask; default true for cortex_t1 and surface_white), view ("left", "right",
     /// "anterior", "posterior", "superior", "inferior") and distance_mm, or T_camera_from_world
     /// (4x4 rows, LPS mm -> camera mm); camera (intrinsics JSON as in case.json) or focal_px;
     /// format "jpeg" | "png"; quality (10..100).
     RenderedImage render(const nlohmann::json& request);
+    /// The loaded MRI's geometry for clients that place their own camera: centre (the standard
+    /// views' target) and box in LPS mm, dims, spacing, and the brain mask's box (`brain`, null
+    /// without a mask). ApiError 503 while loading or after a failed load.
+    nlohmann::json volume_json() const;
     nlohmann::json status_json() const;
     bool healthy() const;
 
@@ -55,6 +59,7 @@ private:
     bool stop_ = false;
     std::string state_ = "stopped";  // stopped, loading, ready, failed
     std::string error_;
+    nlohmann::json volume_info_;  // set once the volume is loaded
     std::string backend_, backend_reason_;
     std::uint64_t renders_ = 0, failures_ = 0;
     double last_render_ms_ = 0;

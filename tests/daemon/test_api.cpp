@@ -320,6 +320,113 @@ TEST(DaemonApi, RenderReturnsADecodableImageOfTheAskedSize) {
     EXPECT_GE(st["renders"].get<int>(), 2);
 }
 
+TEST(DaemonApi, RenderTakesACustomTransferFunction) {
+    auto c = client();
+    // The presets answer their JSON: the shape `tf` takes.
+    const json presets = get_json("/api/render/presets");
+    ASSERT_TRUE(presets["transfer_functions"].contains("skin")) << presets.dump();
+    json skin = presets["transfer_functions"]["skin"];
+    auto render = [&](const json& body) {
+        auto r = c.Post("/api/render", body.dump(), "application/json");
+        EXPECT_TRUE(r);
+        if (!r) return std::make_pair(0, cv::Mat());
+        if (r->status != 200) return std::make_pair(r->status, cv::Mat());
+        return std::make_pair(r->status, cv::imdecode(std::vector<uchar>(r->body.begin(), r->body.end()), cv::IMREAD_GRAYSCALE));
+    };
+    const json base{{"width", 64}, {"height", 48}, {"format", "png"}, {"brain_only", false}};
+    json with_skin = base;
+    with_skin["tf"] = skin;
+    auto [s1, as_tf] = render(with_skin);
+    ASSERT_EQ(s1, 200);
+    json with_preset = base;
+    with_preset["preset"] = "skin";
+    auto [s2, as_preset] = render(with_preset);
+    ASSERT_EQ(s2, 200);
+    // The preset's own JSON as tf renders the same picture as the preset.
+    EXPECT_EQ(cv::norm(as_tf, as_preset, cv::NORM_INF), 0);
+    // A transparent transfer function renders nothing: the tf is used, not a preset.
+    json clear = base;
+    clear["tf"] = {{"colour", {{0, 1, 1, 1}, {1, 1, 1, 1}}}, {"opacity", {{0, 0}, {1, 0}}}};
+    auto [s3, empty] = render(clear);
+    ASSERT_EQ(s3, 200);
+    double lo, hi;
+    cv::minMaxLoc(empty, &lo, &hi);
+    EXPECT_EQ(hi - lo, 0);
+    cv::minMaxLoc(as_tf, &lo, &hi);
+    EXPECT_GT(hi - lo, 50);
+    // Bad transfer functions: 400 naming the field.
+    const json good_colour = {{0, 1, 1, 1}, {1, 1, 1, 1}};
+    for (const auto& [tf, field] : std::vector<std::pair<json, std::string>>{
+             {json("skin"), "tf"},
+             {json{{"opacity", {{0, 0}, {1, 1}}}}, "tf.colour"},
+             {json{{"colour", good_colour}}, "tf.opacity"},
+             {json{{"colour", {{0, 1, 1}}}, {"opacity", {{0, 0}}}}, "tf.colour[0]"},
+             {json{{"colour", good_colour}, {"opacity", {{0, "x"}}}}, "tf.opacity[0]"},
+             {json{{"colour", good_colour}, {"opacity", {{1, 0}, {0, 1}}}}, "sorted"},
+             {json{{"colour", good_colour}, {"opacity", {{0, 2}}}}, "[0, 1]"},
+             {json{{"colour", good_colour}, {"opacity", {{0, 1}}}, {"units", "furlongs"}}, "units"},
+             {json{{"colour", good_colour}, {"opacity", {{0, 1}}}, {"shininess", 3}}, "tf.shininess"},
+             {json{{"colour", good_colour}, {"opacity", json::array()}, {"gradient_opacity", 5}}, "tf.gradient_opacity"}}) {
+        json body = base;
+        body["tf"] = tf;
+        auto r = c.Post("/api/render", body.dump(), "application/json");
+        ASSERT_TRUE(r);
+        EXPECT_EQ(r->status, 400) << body.dump();
+        EXPECT_NE(r->body.find(field), std::string::npos) << body.dump() << " -> " << r->body;
+    }
+    json both = with_skin;
+    both["preset"] = "skin";
+    auto r = c.Post("/api/render", both.dump(), "application/json");
+    ASSERT_TRUE(r);
+    EXPECT_EQ(r->status, 400);
+    EXPECT_NE(r->body.find("not both"), std::string::npos) << r->body;
+}
+
+TEST(DaemonApi, RenderVolumeGivesTheCentreAndExtent) {
+    json v;
+    for (int i = 0; i < 200; ++i) {  // the volume loads on the render thread after start
+        auto c = client();
+        auto r = c.Get("/api/render/volume");
+        ASSERT_TRUE(r);
+        if (r->status == 200) {
+            v = json::parse(r->body);
+            break;
+        }
+        ASSERT_EQ(r->status, 503) << r->body;
+        std::this_thread::sleep_for(std::chrono::milliseconds(100));
+    }
+    ASSERT_TRUE(v.is_object());
+    ASSERT_EQ(v["center_lps_mm"].size(), 3u);
+    ASSERT_EQ(v["dims"].size(), 3u);
+    for (int a = 0; a < 3; ++a) {
+        const double lo = v["min_lps_mm"][a], hi = v["max_lps_mm"][a], c = v["center_lps_mm"][a], e = v["extent_mm"][a];
+        EXPECT_LT(lo, hi);
+        EXPECT_NEAR(e, hi - lo, 1e-6);
+        EXPECT_GT(c, lo);
+        EXPECT_LT(c, hi);
+        EXPECT_GT(e, 100);  // a head
+        EXPECT_LT(e, 400);
+        // The brain lies inside the head's box.
+        ASSERT_TRUE(v["brain"].is_object()) << v.dump();
+        EXPECT_GE(v["brain"]["min_lps_mm"][a].get<double>(), lo - 1e-6);
+        EXPECT_LE(v["brain"]["max_lps_mm"][a].get<double>(), hi + 1e-6);
+        EXPECT_LT(v["brain"]["extent_mm"][a].get<double>(), e);
+    }
+    // A view at the documented distance, aimed at the centre, shows the head (the UI's orbit).
+    const double cx = v["center_lps_mm"][0], cy = v["center_lps_mm"][1], cz = v["center_lps_mm"][2];
+    // Camera on the patient's left (+x) looking right: z_cam = -x, y_cam = -z (down), x_cam = y.
+    const json pose = json::array({json::array({0, 1, 0, -cy}), json::array({0, 0, -1, cz}), json::array({-1, 0, 0, cx + 450}),
+                                   json::array({0, 0, 0, 1})});
+    auto c = client();
+    auto r = c.Post("/api/render", json{{"width", 64}, {"height", 48}, {"preset", "skin"}, {"T_camera_from_world", pose}}.dump(), "application/json");
+    ASSERT_TRUE(r);
+    ASSERT_EQ(r->status, 200) << r->body;
+    cv::Mat img = cv::imdecode(std::vector<uchar>(r->body.begin(), r->body.end()), cv::IMREAD_GRAYSCALE);
+    ASSERT_FALSE(img.empty());
+    // The centre pixel is the head, a corner is background.
+    EXPECT_GT(int(img.at<uchar>(24, 32)), int(img.at<uchar>(0, 0)) + 20);
+}
+
 TEST(DaemonApi, WebSocketCarriesRpcAndTrackerFramesInOrder) {
     WsClient ws;
     ASSERT_TRUE(ws.connect());
