@@ -17,8 +17,12 @@ const { chromium } = createRequire(path.join(uiDir, "package.json"))("playwright
 fs.mkdirSync(artDir, { recursive: true });
 const tmp = fs.mkdtempSync(path.join(os.tmpdir(), "cf-ui-e2e-"));
 const config = path.join(tmp, "config.json");
+// A non-loopback address of this machine: the reviewer's browser "from another host" (the daemon
+// asks it to log in). Without one the reviewer logs in on the kiosk instead (a token from
+// loopback is used too), and the daemon listens on loopback only.
+const remoteIp = Object.values(os.networkInterfaces()).flat().find((a) => a && a.family === "IPv4" && !a.internal)?.address ?? null;
 fs.writeFileSync(config, JSON.stringify({
-  http: { listen: "127.0.0.1:0", ui_dir: path.join(uiDir, "dist") },
+  http: { listen: `${remoteIp ? "0.0.0.0" : "127.0.0.1"}:0`, ui_dir: path.join(uiDir, "dist") },
   state_dir: path.join(tmp, "state"),
 }));
 
@@ -36,7 +40,7 @@ try {
     daemon.stdout.on("data", (d) => {
       out += d;
       const m = /listening on (http:\/\/[^\s]+)/.exec(out);
-      if (m) { clearTimeout(t); resolve(m[1].replace(/\/$/, "")); }
+      if (m) { clearTimeout(t); resolve(m[1].replace(/\/$/, "").replace("0.0.0.0", "127.0.0.1")); }
     });
     daemon.on("exit", (c) => { clearTimeout(t); reject(new Error(`daemon exited ${c}: ${daemonErr.slice(-2000)}`)); });
   });
@@ -52,7 +56,7 @@ try {
   const page = browser.pages()[0] ?? await browser.newPage();
   const pageErrors = [];
   page.on("pageerror", (e) => pageErrors.push(String(e)));
-  const shot = (name) => page.screenshot({ path: path.join(artDir, `${name}.png`) });
+  const shot = (name, p = page) => p.screenshot({ path: path.join(artDir, `${name}.png`) });
 
   // Cases screen, status bar live from the push channel.
   await page.goto(`${base}/`);
@@ -155,6 +159,79 @@ try {
   await page.getByTestId("case-row").first().tap();
   await page.waitForFunction((n) => window.cfRenderTimeline.slice(n).some((e) => e.what === "full"), n1, { timeout: 30000 });
   await shot("08-case-view-1920");
+
+  // ---- A case of the store: import the phantom folder, see what it holds, register it by
+  // case_id (started and cancelled), the run and the audit trail in the case.
+  await page.setViewportSize({ width: 1280, height: 800 });
+  await page.getByRole("link", { name: "Cases" }).first().tap();
+  await page.waitForFunction(() => [...document.querySelectorAll('[data-testid="import-folder"] option')].some((o) => o.value === "phantom/case_0000"), null, { timeout: 20000 });
+  await page.getByTestId("import-folder").selectOption("phantom/case_0000");
+  await page.getByTestId("import-case").tap();
+  await page.waitForURL(/#\/case\/\d+\/contents$/, { timeout: 60000 });
+  const importedId = Number(/case\/(\d+)/.exec(page.url())[1]);
+  await page.getByTestId("case-holdings").waitFor({ timeout: 20000 });
+  const held = await page.getByTestId("case-holdings").textContent();
+  for (const re of [/\d+ volumes? \(/, /1 photo/, /\d+ landmark pairs? \(revision 1\)/, /ROI with \d+ control points/, /Not registered yet/])
+    expect(re.test(held), `the imported case's contents match ${re} (${held})`);
+  expect(await page.getByTestId("case-landmarks").locator("tbody tr").count() >= 4, "the landmark pairs are listed");
+  await shot("09-case-contents");
+  step(`imported case ${importedId}: ${held}`);
+  await page.getByTestId("case-register").tap();
+  await page.waitForURL(/#\/jobs$/, { timeout: 10000 });
+  const caseJob = page.locator(`[data-testid="job-card"][data-state="running"][data-case-id="${importedId}"]`);
+  await caseJob.filter({ hasText: /NMI \d\.\d{4}/ }).waitFor({ timeout: 60000 });
+  await caseJob.getByTestId("cancel-job").tap();
+  await page.locator(`[data-testid="job-card"][data-state="cancelled"][data-case-id="${importedId}"]`).waitFor({ timeout: 30000 });
+  await page.evaluate((id) => { location.hash = `#/case/${id}/contents`; }, importedId);
+  await page.getByTestId("case-registrations").filter({ hasText: "cancelled" }).waitFor({ timeout: 20000 });
+  await page.getByTestId("case-tab-audit").tap();
+  await page.getByTestId("case-audit").waitFor({ timeout: 20000 });
+  const auditKiosk = await page.getByTestId("case-audit").textContent();
+  expect(/case\.view/.test(auditKiosk) && /registration/.test(auditKiosk), `the audit trail lists the views and the registration (${auditKiosk.slice(0, 400)})`);
+  await shot("10-case-audit");
+  step("case registered by case_id (cancelled), run and audit trail shown");
+
+  // ---- Review: a reviewer logs in (from another host when this machine has a non-loopback
+  // address, else on the kiosk with its Log in button) and sees everything read-only.
+  const apiPost = async (p, body) => { const r = await fetch(`${base}${p}`, { method: "POST", headers: { "Content-Type": "application/json" }, body: JSON.stringify(body) }); return r.status; };
+  expect(await apiPost("/api/users", { name: "rita", password: "review-pass-1", role: "reviewer" }) === 201, "the kiosk creates a reviewer");
+  const rbase = remoteIp ? base.replace("127.0.0.1", remoteIp) : base;
+  const rp = await browser.newPage();
+  rp.on("pageerror", (e) => pageErrors.push(String(e)));
+  await rp.goto(`${rbase}/#/cases`);
+  if (!remoteIp) await rp.getByTestId("auth-button").tap();
+  await rp.getByTestId("login-form").waitFor({ timeout: 15000 });
+  step(`review from ${rbase}: ${await rp.getByTestId("login-note").textContent()}`);
+  await rp.getByTestId("login-name").fill("rita");
+  await rp.getByTestId("login-password").fill("not-her-password");
+  await rp.getByTestId("login-submit").tap();
+  await rp.getByTestId("login-error").filter({ hasText: "Wrong user name or password" }).waitFor({ timeout: 10000 });
+  await shot("11-login-wrong-password", rp);
+  await rp.getByTestId("login-password").fill("review-pass-1");
+  await rp.getByTestId("login-submit").tap();
+  await rp.getByTestId("sb-role").filter({ hasText: "rita (reviewer, read-only)" }).waitFor({ timeout: 10000 });
+  await rp.getByTestId("sb-link").filter({ hasText: "Live" }).waitFor({ timeout: 15000 });
+  await rp.getByTestId("case-row").first().waitFor({ timeout: 15000 });
+  await rp.getByTestId("read-only-note").waitFor({ timeout: 5000 });
+  expect(await rp.getByTestId("create-case").count() === 0 && await rp.getByTestId("import-case").count() === 0, "a reviewer gets no create or import");
+  await shot("12-review-cases", rp);
+  await rp.evaluate((id) => { location.hash = `#/case/${id}/contents`; }, importedId);
+  await rp.getByTestId("case-registrations").filter({ hasText: "cancelled" }).waitFor({ timeout: 20000 });
+  expect(await rp.getByTestId("case-register").count() === 0, "a reviewer gets no Start registration");
+  await shot("13-review-contents", rp);
+  await rp.getByTestId("case-tab-view").tap();
+  await rp.waitForFunction(() => document.querySelector('[data-testid="render-image"]')?.dataset.full === "true", null, { timeout: 30000 });
+  await rp.getByTestId("case-tab-audit").tap();
+  await rp.getByTestId("case-audit").filter({ hasText: "rita" }).waitFor({ timeout: 20000 });
+  await shot("14-review-audit", rp);
+  await rp.getByRole("link", { name: "Jobs" }).tap();
+  await rp.getByTestId("job-card").first().waitFor({ timeout: 15000 });
+  expect(await rp.getByTestId("start-register").count() === 0, "a reviewer gets no Start registration on Jobs");
+  expect(await rp.locator('[data-testid="cancel-job"]:visible').count() === 0, "a reviewer gets no Cancel");
+  await rp.getByTestId("auth-button").filter({ hasText: "Log out" }).tap();
+  if (remoteIp) await rp.getByTestId("login-form").waitFor({ timeout: 10000 });
+  else await rp.getByTestId("sb-role").filter({ hasText: "Kiosk" }).waitFor({ timeout: 10000 });
+  step("reviewer: logged in, read-only screens, audit trail with her views, logged out");
 
   expect(pageErrors.length === 0, `no page errors (${pageErrors.join("; ")})`);
   step("PASS");

@@ -14,6 +14,11 @@ export class ApiError extends Error {
 
 export type FetchLike = (input: string, init?: RequestInit) => Promise<Response>;
 
+/** The login session the requests carry (docs/api/cases.md): `token` is sent as
+ *  `Authorization: Bearer`; `onUnauthorized` hears every 401 except the login's own (an
+ *  expired or missing session: the UI shows its login screen). */
+export const auth: { token: string | null; onUnauthorized: ((e: ApiError) => void) | null } = { token: null, onUnauthorized: null };
+
 function what(method: string, path: string): string {
   return `${method} ${path}`;
 }
@@ -46,6 +51,7 @@ export function errorFromAnswer(method: string, path: string, status: number, bo
 
 async function send(fetchImpl: FetchLike, method: string, path: string, body?: unknown): Promise<Response> {
   const init: RequestInit = { method, headers: {} };
+  if (auth.token) (init.headers as Record<string, string>)["Authorization"] = `Bearer ${auth.token}`;
   if (body !== undefined) {
     init.body = JSON.stringify(body);
     (init.headers as Record<string, string>)["Content-Type"] = "application/json";
@@ -58,7 +64,11 @@ async function send(fetchImpl: FetchLike, method: string, path: string, body?: u
     throw new ApiError(0, "unreachable",
       `The daemon cannot be reached (${what(method, path)}). Check that cortexfused is running; the screen retries on its own.`);
   }
-  if (!res.ok) throw errorFromAnswer(method, path, res.status, await res.text().catch(() => ""));
+  if (!res.ok) {
+    const e = errorFromAnswer(method, path, res.status, await res.text().catch(() => ""));
+    if (e.status === 401 && path !== "/api/login") auth.onUnauthorized?.(e);
+    throw e;
+  }
   return res;
 }
 

@@ -1,22 +1,13 @@
-// CortexFuse kiosk UI, first cut: status bar, cases, case view with a rendered volume, jobs.
+// CortexFuse kiosk UI: status bar, login (remote review), cases, case view with a rendered
+// volume, the case's contents and audit trail, jobs.
 import "./style.css";
-import { apiJson, apiRender, plainMessage, type RenderedImage } from "./api";
+import { ApiError, apiJson, apiRender, auth, plainMessage, type RenderedImage } from "./api";
 import { PushChannel, type PushState } from "./push";
 import { fitFocalPx, RenderScheduler, renderSizes } from "./render_scheduler";
 import { drawNmiPlot, type NmiPoint } from "./nmiplot";
-
-// ---- tiny DOM helper ---------------------------------------------------------------------
-type Attrs = Record<string, string | number | boolean | ((ev: Event) => void)>;
-function h<K extends keyof HTMLElementTagNameMap>(tag: K, attrs: Attrs = {}, ...kids: (Node | string)[]): HTMLElementTagNameMap[K] {
-  const el = document.createElement(tag);
-  for (const [k, v] of Object.entries(attrs)) {
-    if (typeof v === "function") el.addEventListener(k.slice(2), v);
-    else if (typeof v === "boolean") { if (v) el.setAttribute(k, ""); }
-    else el.setAttribute(k, String(v));
-  }
-  for (const c of kids) el.append(c);
-  return el;
-}
+import { h, table } from "./dom";
+import { canWrite, KIOSK, loadSession, roleLabel, saveSession, sessionFromLogin, wsUrl, type Session } from "./session";
+import { auditRows, fmtBytes, fmtTime, holdings, patientLine, registrationRows, type AuditEntry, type CaseRecord } from "./case_detail";
 
 // ---- shared state ------------------------------------------------------------------------
 interface CaseSummary { id: number; uid: string; title: string; state: string; created_utc: string; updated_utc: string }
@@ -53,8 +44,79 @@ const sb = {
   renderer: h("span", { class: "pill", "data-testid": "sb-renderer" }, "Renderer: …"),
   jobs: h("span", { class: "pill", "data-testid": "sb-jobs" }, "Jobs: …"),
   link: h("span", { class: "pill", "data-testid": "sb-link" }, "Link: …"),
+  role: h("span", { class: "pill", "data-testid": "sb-role" }, "…"),
 };
-statusBar.append(h("span", { class: "brand" }, "CortexFuse"), ...Object.values(sb));
+const authBtn = h("button", { class: "btn small", "data-testid": "auth-button", hidden: true }, "Log in");
+statusBar.append(h("span", { class: "brand" }, "CortexFuse"), ...Object.values(sb), authBtn);
+
+// ---- session (kiosk or a logged-in user) --------------------------------------------------
+// The kiosk (loopback, no token) may do everything; other hosts get 401 until they log in
+// (docs/api/cases.md). needLogin: the daemon asked for a login; the login screen is shown.
+let session: Session = KIOSK;
+let needLogin = false;
+let loginNote = "";
+let loginFromKiosk = false; // the kiosk asked to log in as someone: "Back to the kiosk" is offered
+let push: PushChannel | null = null;
+
+function applySession(): void {
+  auth.token = session.token;
+  document.body.classList.toggle("read-only", !canWrite(session));
+  setPill(sb.role, needLogin ? "Not logged in" : roleLabel(session), needLogin ? "warn" : session.role === "reviewer" ? "warn" : "ok");
+  authBtn.hidden = needLogin;
+  authBtn.textContent = session.token ? "Log out" : "Log in";
+}
+
+function startPush(): void {
+  push?.stop();
+  push = new PushChannel(wsUrl(location, session), onNotify, onPushState);
+  push.start();
+}
+
+function askLogin(note: string, fromKiosk = false): void {
+  loginFromKiosk = fromKiosk;
+  push?.stop();
+  push = null;
+  setPill(sb.link, "Link: after login", "warn");
+  needLogin = true;
+  loginNote = note;
+  session = KIOSK;
+  saveSession(sessionStorage, null);
+  applySession();
+  route();
+}
+
+// Any 401 (an expired session, or a host that must log in): the login screen, saying why.
+auth.onUnauthorized = (e: ApiError) => {
+  if (needLogin) return;
+  askLogin(session.token ? `Your session has ended (${e.message}). Log in again.` : "This screen is not the cart's kiosk: log in to continue.");
+};
+
+authBtn.addEventListener("click", async () => {
+  if (!session.token) { askLogin("Log in as another user (a reviewer sees the cases read-only).", true); return; }
+  try { await apiJson("POST", "/api/logout"); } catch { /* the session ends here either way */ }
+  saveSession(sessionStorage, null);
+  session = KIOSK;
+  auth.token = null;
+  await probeAccess("You have logged out.");
+});
+
+/** Whether the daemon lets this browser in as it is (kiosk, or the stored session); else the
+ *  login screen. */
+async function probeAccess(note = ""): Promise<void> {
+  try {
+    await apiJson("GET", "/api/cases?limit=1");
+  } catch (e) {
+    if (e instanceof ApiError && e.status === 401) {
+      if (!needLogin) askLogin(note ? `${note} This screen is not the cart's kiosk: log in to continue.` : "This screen is not the cart's kiosk: log in to continue.");
+      return;
+    }
+    showError(e); // unreachable or failing: the screens say so, the push channel retries
+  }
+  needLogin = false;
+  applySession();
+  startPush();
+  route();
+}
 
 function setPill(el: HTMLElement, text: string, level: "ok" | "warn" | "bad"): void {
   el.textContent = text;
@@ -103,6 +165,7 @@ async function pollStatus(): Promise<void> {
 }
 
 function onPushState(s: PushState): void {
+  if (needLogin) return;
   setPill(sb.link, s === "open" ? "Live" : s === "connecting" ? "Connecting…" : "Daemon unreachable", s === "open" ? "ok" : s === "connecting" ? "warn" : "bad");
   if (s === "open") { pollStatus(); loadJobs(); }
 }
@@ -113,8 +176,6 @@ function onNotify(method: string, params: unknown): void {
   else if (method === "notify_job") upsertJob(params as Job);
 }
 
-const wsUrl = `${location.protocol === "https:" ? "wss" : "ws"}://${location.host}/api/ws`;
-new PushChannel(wsUrl, onNotify, onPushState).start();
 
 // ---- jobs store --------------------------------------------------------------------------
 function upsertJob(j: Job): void {
@@ -129,6 +190,7 @@ function upsertJob(j: Job): void {
   jobsListener?.();
 }
 async function loadJobs(): Promise<void> {
+  if (needLogin) return;
   try {
     const r = await apiJson<{ jobs: Job[] }>("GET", "/api/jobs");
     for (const j of r.jobs) upsertJob(j);
@@ -139,7 +201,7 @@ async function loadJobs(): Promise<void> {
 // so a job's last notify_job can be lost: while any job is queued or running, read the list
 // every 2 s as well.
 setInterval(() => {
-  if ([...jobs.values()].some((j) => j.state === "queued" || j.state === "running")) loadJobs();
+  if (!needLogin && [...jobs.values()].some((j) => j.state === "queued" || j.state === "running")) loadJobs();
 }, 2000);
 
 // ---- router ------------------------------------------------------------------------------
@@ -150,20 +212,60 @@ function route(): void {
   leaveScreen = null;
   jobsListener = null;
   main.replaceChildren();
+  if (needLogin) { nav.replaceChildren(); loginScreen(); return; }
   const hash = location.hash || "#/cases";
   nav.replaceChildren(...tabs.map(([href, label]) =>
     h("a", { href, class: `tab${hash.startsWith(href) || (href === "#/cases" && hash.startsWith("#/case/")) ? " active" : ""}` }, label)));
-  const m = /^#\/case\/(\d+)$/.exec(hash);
-  if (m) caseScreen(Number(m[1]));
+  const m = /^#\/case\/(\d+)(?:\/([a-z]+))?$/.exec(hash);
+  if (m) caseScreen(Number(m[1]), m[2] ?? "view");
   else if (hash.startsWith("#/jobs")) jobsScreen();
   else casesScreen();
 }
 window.addEventListener("hashchange", route);
 
-// ---- Cases -------------------------------------------------------------------------------
-function fmtTime(utc: string): string {
-  return utc ? utc.replace("T", " ").replace(/\.\d+Z$|Z$/, "") + " UTC" : "";
+// ---- Login -------------------------------------------------------------------------------
+function loginScreen(): void {
+  const name = h("input", { type: "text", class: "field", autocomplete: "username", placeholder: "User name", "data-testid": "login-name" });
+  const password = h("input", { type: "password", class: "field", autocomplete: "current-password", placeholder: "Password", "data-testid": "login-password" });
+  const msg = h("p", { class: "login-error", role: "alert", "data-testid": "login-error", hidden: true });
+  const submit = h("button", { class: "btn primary", type: "submit", "data-testid": "login-submit" }, "Log in");
+  const cancel = h("button", { class: "btn", type: "button", "data-testid": "login-cancel", hidden: !loginFromKiosk }, "Back to the kiosk");
+  const login = async (ev: Event) => {
+    ev.preventDefault();
+    msg.hidden = true;
+    if (!name.value.trim() || !password.value) { msg.textContent = "Type your user name and password."; msg.hidden = false; return; }
+    submit.disabled = true;
+    try {
+      auth.token = null;
+      const s = sessionFromLogin(await apiJson("POST", "/api/login", { name: name.value.trim(), password: password.value }));
+      session = s;
+      saveSession(sessionStorage, s);
+      needLogin = false;
+      loginNote = "";
+      applySession();
+      startPush();
+      if (!location.hash || location.hash === "#/login") location.hash = "#/cases";
+      route();
+    } catch (e) {
+      msg.textContent = e instanceof ApiError && e.status === 401
+        ? "Wrong user name or password. Check both and try again; an administrator can reset the password."
+        : plainMessage(e);
+      msg.hidden = false;
+      password.value = "";
+      password.focus();
+    } finally { submit.disabled = false; }
+  };
+  // "Back to the kiosk": only on the cart (loopback answers without a login).
+  cancel.addEventListener("click", () => { needLogin = false; probeAccess(); });
+  main.append(h("form", { class: "login", onsubmit: login, "data-testid": "login-form" },
+    h("h1", {}, "Log in"),
+    h("p", { class: "muted", "data-testid": "login-note" }, loginNote || "Log in with your CortexFuse user."),
+    h("label", {}, "User name"), name, h("label", {}, "Password"), password, msg,
+    h("div", { class: "toolbar" }, submit, cancel)));
+  name.focus();
 }
+
+// ---- Cases -------------------------------------------------------------------------------
 function casesScreen(): void {
   const search = h("input", { type: "search", placeholder: "Search title, MRN, patient", class: "field grow", "data-testid": "case-search" });
   const list = h("div", { class: "list", "data-testid": "case-list" });
@@ -192,12 +294,29 @@ function casesScreen(): void {
       location.hash = `#/case/${c.id}`;
     } catch (e) { showError(e); }
   };
-  main.append(
-    h("h1", {}, "Cases"),
-    h("div", { class: "toolbar" }, search),
-    list,
-    h("form", { class: "toolbar", onsubmit: create }, title, h("button", { class: "btn primary", type: "submit", "data-testid": "create-case" }, "Create case")),
-  );
+  main.append(h("h1", {}, "Cases"), h("div", { class: "toolbar" }, search), list);
+  if (canWrite(session)) {
+    // Import a case folder (the phantom generator's, under the state folder's cases/) into the store.
+    const folder = h("select", { class: "field grow", "data-testid": "import-folder" });
+    const importBtn = h("button", { class: "btn", type: "button", "data-testid": "import-case" }, "Import case folder");
+    importBtn.addEventListener("click", async () => {
+      if (!folder.value) { showError(new Error("There is no case folder to import yet.")); return; }
+      importBtn.disabled = true;
+      try {
+        const c = await apiJson<CaseSummary>("POST", "/api/cases/import", { folder: folder.value });
+        location.hash = `#/case/${c.id}/contents`;
+      } catch (e) { showError(e); } finally { importBtn.disabled = false; }
+    });
+    apiJson<{ folders: string[] }>("GET", "/api/case-folders").then((r) => {
+      folder.replaceChildren(...r.folders.map((f) => h("option", { value: f }, f)));
+      if (!r.folders.length) folder.append(h("option", { value: "" }, "No case folders"));
+    }, showError);
+    main.append(
+      h("form", { class: "toolbar", onsubmit: create, "data-write": "" }, title, h("button", { class: "btn primary", type: "submit", "data-testid": "create-case" }, "Create case")),
+      h("div", { class: "toolbar", "data-write": "" }, folder, importBtn));
+  } else {
+    main.append(h("p", { class: "muted", "data-testid": "read-only-note" }, "Read-only: you are logged in as a reviewer."));
+  }
   load();
 }
 
@@ -209,8 +328,97 @@ const timeline: { what: string; t: number; size: string }[] = [];
 interface View { preset: string; opacity: number; view: string }
 const ORBIT = ["left", "anterior", "right", "posterior"];
 
-function caseScreen(id: number): void {
-  const header = h("div", { class: "toolbar" }, h("a", { class: "btn", href: "#/cases" }, "‹ Cases"), h("h1", { class: "grow" }, `Case ${id}`));
+const CASE_TABS: [string, string][] = [["view", "3D view"], ["contents", "Contents"], ["audit", "Audit trail"]];
+
+/** The case's header (back, title, state) and its sub-screens; `onCase` gets the record, `onMissing`
+ *  runs when it cannot be read (after the banner). */
+function caseScreen(id: number, sub: string): void {
+  const header = h("div", { class: "toolbar" }, h("a", { class: "btn", href: "#/cases" }, "‹ Cases"), h("h1", { class: "grow", "data-testid": "case-title" }, `Case ${id}`));
+  const subtabs = h("div", { class: "subtabs" }, ...CASE_TABS.map(([key, label]) =>
+    h("a", { class: `btn${key === sub ? " active" : ""}`, href: key === "view" ? `#/case/${id}` : `#/case/${id}/${key}`, "data-testid": `case-tab-${key}` }, label)));
+  main.append(header, subtabs);
+  const body = h("div", { class: "case-body" });
+  main.append(body);
+  let alive = true;
+  leaveScreen = () => { alive = false; };
+  const missing = (e: unknown) => {
+    if (!alive) return;
+    showError(e);
+    body.replaceChildren(h("p", { class: "muted", "data-testid": "case-missing" },
+      "This case could not be opened. Go back to the cases and pick another, or create one."));
+  };
+  const got = (c: CaseRecord) => {
+    header.querySelector("h1")!.textContent = c.title || `Case ${id}`;
+    header.append(h("span", { class: "badge", "data-testid": "case-state" }, c.state.replace(/_/g, " ")));
+  };
+  if (sub === "contents") caseContents(id, body, () => alive, got, missing);
+  else if (sub === "audit") caseAudit(id, body, () => alive, got, missing);
+  else caseView(id, body, () => alive, got, missing, (f) => { const prev = leaveScreen; leaveScreen = () => { prev?.(); f(); }; });
+}
+
+type Alive = () => boolean;
+
+function caseContents(id: number, body: HTMLElement, alive: Alive, got: (c: CaseRecord) => void, missing: (e: unknown) => void): void {
+  body.append(h("p", { class: "muted" }, "Loading…"));
+  apiJson<CaseRecord>("GET", `/api/cases/${id}`).then((c) => {
+    if (!alive()) return;
+    got(c);
+    const vols = c.volumes ?? [], photos = c.photos ?? [];
+    const parts: HTMLElement[] = [
+      h("ul", { class: "holdings", "data-testid": "case-holdings" }, ...holdings(c).map((l) => h("li", {}, l))),
+      h("h2", {}, "Patient"), h("p", { "data-testid": "case-patient" }, patientLine(c.patient)),
+      h("p", { class: "muted" }, `Case uid ${c.uid} · created ${fmtTime(c.created_utc)} · changed ${fmtTime(c.updated_utc)}`),
+      h("h2", {}, "Volumes"),
+      vols.length ? table(["modality", "file", "size", "sha256", "added"],
+        vols.map((v) => [v.modality, v.original_name, fmtBytes(v.size_bytes), v.sha256.slice(0, 12), fmtTime(v.created_utc)]), "case-volumes")
+        : h("p", { class: "muted" }, "None."),
+      h("h2", {}, "Photos"),
+      photos.length ? table(["file", "size (px)", "sha256", "added"],
+        photos.map((p) => [p.original_name, p.intrinsics?.width ? `${p.intrinsics.width}x${p.intrinsics.height}` : "–", p.sha256.slice(0, 12), fmtTime(p.created_utc)]), "case-photos")
+        : h("p", { class: "muted" }, "None."),
+      h("h2", {}, "Landmarks"),
+      c.landmarks?.points.length ? table(["name", "model (mm)", "photo (px)"],
+        c.landmarks.points.map((p) => [p.name, p.world_mm.map((v) => v.toFixed(1)).join(", "), p.pixel.map((v) => v.toFixed(1)).join(", ")]), "case-landmarks")
+        : h("p", { class: "muted" }, "None."),
+      h("h2", {}, "ROI"),
+      h("p", { "data-testid": "case-roi" }, c.roi ? `${c.roi.roi.type ?? "spline"}, ${c.roi.roi.points?.length ?? 0} control points, revision ${c.roi.revision}` : "None."),
+      h("h2", {}, "Registrations"),
+      c.registrations?.length ? table(["run", "status", "NMI", "time", "evaluations", "started", "error"], registrationRows(c.registrations), "case-registrations")
+        : h("p", { class: "muted" }, "None."),
+    ];
+    if (c.results?.length) parts.push(h("h2", {}, "Results"), table(["kind", "name", "type", "registration"],
+      c.results.map((r) => [r.kind, r.name, r.media_type, r.registration_id !== null ? `#${r.registration_id}` : ""]), "case-results"));
+    if (canWrite(session)) {
+      const reg = h("button", { class: "btn primary", "data-testid": "case-register" }, "Start registration");
+      const ready = vols.length > 0 && photos.length > 0;
+      reg.disabled = !ready;
+      reg.addEventListener("click", async () => {
+        reg.disabled = true;
+        try {
+          const j = await apiJson<Job>("POST", "/api/jobs", { kind: "register", params: { case_id: id } });
+          upsertJob(j);
+          location.hash = "#/jobs";
+        } catch (e) { showError(e); reg.disabled = false; }
+      });
+      parts.unshift(h("div", { class: "toolbar", "data-write": "" }, reg,
+        h("span", { class: "muted" }, ready ? "Registers the case's volume with its photo." : "Needs a volume and a photo first.")));
+    }
+    body.replaceChildren(...parts);
+  }, missing);
+}
+
+function caseAudit(id: number, body: HTMLElement, alive: Alive, got: (c: CaseRecord) => void, missing: (e: unknown) => void): void {
+  body.append(h("p", { class: "muted" }, "Loading…"));
+  Promise.all([apiJson<CaseRecord>("GET", `/api/cases/${id}`), apiJson<{ audit: AuditEntry[] }>("GET", `/api/cases/${id}/audit`)]).then(([c, a]) => {
+    if (!alive()) return;
+    got(c);
+    body.replaceChildren(h("p", { class: "muted" }, `${a.audit.length} entries, newest first. Every change and every opening of the case is recorded with who did it.`),
+      table(["when", "who", "what", "details"], auditRows(a.audit), "case-audit"));
+  }, missing);
+}
+
+function caseView(id: number, body: HTMLElement, aliveFn: Alive, got: (c: CaseRecord) => void, missing: (e: unknown) => void,
+                  onLeave: (f: () => void) => void): void {
   const img = h("img", { class: "render", alt: "Rendered view of the volume", "data-testid": "render-image", draggable: "false" });
   const stage = h("div", { class: "render-stage", "data-testid": "render-stage" }, img);
   const info = h("div", { class: "muted", "data-testid": "render-info" }, "Rendering…");
@@ -223,16 +431,15 @@ function caseScreen(id: number): void {
     h("h2", {}, "Opacity ", opacityOut), opacity,
     h("h2", {}, "View"), views,
     h("p", { class: "muted" }, "Drag on the picture to turn the head."), info);
-  main.append(header, h("div", { class: "case-layout" }, stage, side));
+  body.append(h("div", { class: "case-layout" }, stage, side));
 
   const v: View = { preset: "cortex_t1", opacity: 1, view: "left" };
   let url = "";
-  let alive = true;
   const sched = new RenderScheduler<View>({
     render: (view, size) => apiRender({ width: size.width, height: size.height, preset: view.preset, opacity: view.opacity, view: view.view,
                                        distance_mm: 450, focal_px: fitFocalPx(size.width, size.height, 450, 95) }),
     onImage: (r, _view, size, full) => {
-      if (!alive) return;
+      if (!aliveFn()) return;
       const ri = r as RenderedImage;
       if (url) URL.revokeObjectURL(url);
       url = URL.createObjectURL(ri.blob);
@@ -242,10 +449,10 @@ function caseScreen(id: number): void {
       info.textContent = `${ri.width}x${ri.height} ${full ? "" : "preview "}in ${ri.renderMs.toFixed(0)} ms (${ri.renderer})`;
       timeline.push({ what: full ? "full" : "preview", t: performance.now(), size: `${size.width}x${size.height}` });
     },
-    onError: (e) => alive && showError(e),
+    onError: (e) => aliveFn() && showError(e),
     sizes: () => renderSizes(stage.clientWidth || 640, stage.clientHeight || 480, 1, { width: 1280, height: 1024 }),
   });
-  leaveScreen = () => { alive = false; if (url) URL.revokeObjectURL(url); };
+  onLeave(() => { if (url) URL.revokeObjectURL(url); });
 
   const mark = (box: HTMLElement, val: string) => box.querySelectorAll("button").forEach((b) => b.classList.toggle("active", b.dataset.value === val));
   const setView = (name: string) => { v.view = name; mark(views, name); };
@@ -258,18 +465,11 @@ function caseScreen(id: number): void {
     presets.replaceChildren(...r.presets.map((p) => h("button", { class: "btn", "data-value": p, onclick: () => { v.preset = p; mark(presets, p); sched.now({ ...v }); } }, p.replace(/_/g, " "))));
     mark(presets, v.preset);
   }, showError);
-  const layout = main.querySelector(".case-layout")!;
-  apiJson<CaseSummary & { patient?: unknown }>("GET", `/api/cases/${id}`).then((c) => {
-    if (!alive) return;
-    header.querySelector("h1")!.textContent = c.title || `Case ${id}`;
-    header.append(h("span", { class: "badge", "data-testid": "case-state" }, c.state.replace(/_/g, " ")));
+  apiJson<CaseRecord>("GET", `/api/cases/${id}`).then((c) => {
+    if (!aliveFn()) return;
+    got(c);
     sched.now({ ...v });
-  }, (e) => {
-    if (!alive) return;
-    showError(e);
-    layout.replaceChildren(h("p", { class: "muted", "data-testid": "case-missing" },
-      "This case could not be opened. Go back to the cases and pick another, or create one."));
-  });
+  }, missing);
 
   // Drag: every 60 px sideways steps round the head, up/down looks from above/below.
   let start: { x: number; y: number; view: string } | null = null;
@@ -299,11 +499,13 @@ function jobsScreen(): void {
   const canvas = h("canvas", { class: "plot", width: 480, height: 200, "data-testid": "nmi-plot" });
   const plotTitle = h("h2", {}, "NMI against evaluations");
   let selected: number | null = null;
+  const writer = canWrite(session);
   main.append(h("h1", {}, "Jobs"),
-    h("div", { class: "toolbar" }, h("label", { class: "muted" }, "Phantom case"), folder, startBtn),
+    writer ? h("div", { class: "toolbar", "data-write": "" }, h("label", { class: "muted" }, "Phantom case"), folder, startBtn)
+           : h("p", { class: "muted" }, "Read-only: jobs are shown, not started or cancelled."),
     h("div", { class: "jobs-layout" }, list, h("div", { class: "plot-box" }, plotTitle, canvas)));
 
-  apiJson<{ folders: string[] }>("GET", "/api/case-folders").then((r) => {
+  if (writer) apiJson<{ folders: string[] }>("GET", "/api/case-folders").then((r) => {
     folder.replaceChildren(...r.folders.map((f) => h("option", { value: f }, f)));
     if (!r.folders.length) folder.append(h("option", { value: "" }, "No case folders yet"));
   }, showError);
@@ -325,10 +527,11 @@ function jobsScreen(): void {
   const empty = h("p", { class: "muted" }, "No jobs yet.");
   const makeCard = (j: Job): Card => {
     const c: Card = {
-      el: h("div", { class: "job", "data-testid": "job-card", onclick: () => { selected = j.id; render(); } }),
+      el: h("div", { class: "job", "data-testid": "job-card", "data-job-id": j.id, "data-case-id": String(j.params?.case_id ?? ""),
+                     onclick: () => { selected = j.id; render(); } }),
       badge: h("span", { class: "badge" }), bar: h("div", { class: "bar" }), stage: h("span"), nmi: h("span"),
       evals: h("span"), error: h("div", { class: "job-error" }),
-      cancel: h("button", { class: "btn danger", "data-testid": "cancel-job" }, "Cancel"),
+      cancel: h("button", { class: "btn danger", "data-testid": "cancel-job", "data-write": "" }, "Cancel"),
     };
     c.cancel.addEventListener("click", async (ev) => {
       ev.stopPropagation();
@@ -337,7 +540,7 @@ function jobsScreen(): void {
     });
     c.el.append(
       h("div", { class: "job-head" }, h("strong", {}, `#${j.id} ${j.kind}`), c.badge,
-        h("span", { class: "muted grow" }, String(j.params?.case ?? j.params?.case_id ?? ""))),
+        h("span", { class: "muted grow" }, j.params?.case_id !== undefined ? `case #${j.params.case_id} of the store` : String(j.params?.case ?? ""))),
       h("div", { class: "progress" }, c.bar), h("div", { class: "job-figs" }, c.stage, c.nmi, c.evals), c.error, c.cancel);
     return c;
   };
@@ -361,7 +564,7 @@ function jobsScreen(): void {
       c.evals.textContent = typeof j.figures?.evaluation === "number" ? `${j.figures.evaluation} evaluations` : "";
       c.error.textContent = j.error ?? "";
       c.error.hidden = !j.error;
-      c.cancel.hidden = !active;
+      c.cancel.hidden = !active || !writer;
       if (j.cancel_requested) { c.cancel.disabled = true; c.cancel.textContent = "Cancelling…"; }
       order.push(c.el);
     }
@@ -376,5 +579,8 @@ function jobsScreen(): void {
   loadJobs();
 }
 
+// Start: the stored session (this tab) if any, then ask the daemon whether it lets us in.
+session = loadSession(sessionStorage) ?? KIOSK;
+applySession();
 pollStatus();
-route();
+probeAccess();

@@ -9,6 +9,7 @@ export class PushChannel {
   private session: RpcSession | null = null;
   private retryMs = 1000;
   private stopped = false;
+  private retryTimer: ReturnType<typeof setTimeout> | null = null;
 
   constructor(
     private readonly url: string,
@@ -19,6 +20,13 @@ export class PushChannel {
   start(): void {
     this.stopped = false;
     this.connect();
+  }
+
+  /** Closes the socket for good (a new login opens a new channel with its token). */
+  stop(): void {
+    this.stopped = true;
+    if (this.retryTimer !== null) { clearTimeout(this.retryTimer); this.retryTimer = null; }
+    this.ws?.close();
   }
 
   call<T>(method: string, params?: Record<string, unknown>): Promise<T> {
@@ -42,9 +50,10 @@ export class PushChannel {
     };
     ws.onclose = () => {
       session.failAll("the push channel closed");
+      if (this.stopped) return;
       this.onState("closed");
       if (!this.stopped) {
-        setTimeout(() => this.connect(), this.retryMs);
+        this.retryTimer = setTimeout(() => { this.retryTimer = null; this.connect(); }, this.retryMs);
         this.retryMs = Math.min(5000, this.retryMs * 2);
       }
     };

@@ -60,3 +60,28 @@ describe("api client", () => {
     expect(plainMessage("x")).toBe("Something went wrong: x");
   });
 });
+
+describe("api client with a login session", () => {
+  it("sends the token as a bearer and reports a 401 to the session hook (not the login's own)", async () => {
+    const { auth } = await import("../src/api");
+    const seen: string[] = [];
+    let hdr: Record<string, string> = {};
+    auth.token = "tok123";
+    auth.onUnauthorized = (e) => seen.push(e.message);
+    try {
+      const f: FetchLike = async (_u, init) => { hdr = init?.headers as Record<string, string>; return new Response('{"error":{"code":"unauthorized","message":"session expired"}}', { status: 401 }); };
+      const e: any = await apiJson("GET", "/api/cases", undefined, f).catch((x: any) => x);
+      expect(hdr["Authorization"]).toBe("Bearer tok123");
+      expect(e.status).toBe(401);
+      expect(seen).toEqual(["session expired"]);
+      await apiJson("POST", "/api/login", { name: "a", password: "b" }, f).catch(() => {});
+      expect(seen).toHaveLength(1);
+      auth.token = null;
+      await apiJson("GET", "/api/cases", undefined, f).catch(() => {});
+      expect(hdr["Authorization"]).toBeUndefined();
+    } finally {
+      auth.token = null;
+      auth.onUnauthorized = null;
+    }
+  });
+});
