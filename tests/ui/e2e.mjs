@@ -26,24 +26,32 @@ fs.writeFileSync(config, JSON.stringify({
   state_dir: path.join(tmp, "state"),
 }));
 
-let daemon, browser, failed = false;
+let daemon, daemonB, browser, failed = false;
 const step = (s) => console.log(`[e2e] ${s}`);
 const expect = (cond, what) => { if (!cond) throw new Error(`expected: ${what}`); };
 
-try {
-  daemon = spawn(daemonBin, ["--config", config], { stdio: ["ignore", "pipe", "pipe"] });
-  let daemonErr = "";
-  daemon.stderr.on("data", (d) => { daemonErr += d; if (daemonErr.length > 20000) daemonErr = daemonErr.slice(-10000); });
-  const base = await new Promise((resolve, reject) => {
-    let out = "";
-    const t = setTimeout(() => reject(new Error(`daemon did not start in 30 s: ${daemonErr.slice(-2000)}`)), 30000);
-    daemon.stdout.on("data", (d) => {
-      out += d;
-      const m = /listening on (http:\/\/[^\s]+)/.exec(out);
-      if (m) { clearTimeout(t); resolve(m[1].replace(/\/$/, "").replace("0.0.0.0", "127.0.0.1")); }
-    });
-    daemon.on("exit", (c) => { clearTimeout(t); reject(new Error(`daemon exited ${c}: ${daemonErr.slice(-2000)}`)); });
+/** Starts cortexfused with a configuration file; resolves to { proc, base } once it listens. */
+const startDaemon = (configFile) => new Promise((resolve, reject) => {
+  const proc = spawn(daemonBin, ["--config", configFile], { stdio: ["ignore", "pipe", "pipe"] });
+  let err = "", out = "";
+  proc.stderr.on("data", (d) => { err += d; if (err.length > 20000) err = err.slice(-10000); });
+  const t = setTimeout(() => reject(new Error(`daemon did not start in 30 s: ${err.slice(-2000)}`)), 30000);
+  proc.stdout.on("data", (d) => {
+    out += d;
+    const m = /listening on (http:\/\/[^\s]+)/.exec(out);
+    if (m) { clearTimeout(t); resolve({ proc, base: m[1].replace(/\/$/, "").replace("0.0.0.0", "127.0.0.1") }); }
   });
+  proc.on("exit", (c) => { clearTimeout(t); reject(new Error(`daemon exited ${c}: ${err.slice(-2000)}`)); });
+});
+const stopDaemon = async (proc) => {
+  if (!proc || proc.exitCode !== null || proc.signalCode !== null) return;
+  proc.kill("SIGTERM");
+  await new Promise((r) => { const t = setTimeout(() => { proc.kill("SIGKILL"); r(); }, 10000); proc.on("exit", () => { clearTimeout(t); r(); }); });
+};
+
+try {
+  let base;
+  ({ proc: daemon, base } = await startDaemon(config));
   step(`daemon at ${base}`);
 
   // A fresh profile folder each run (playwright passes it as --user-data-dir).
@@ -73,6 +81,16 @@ try {
   await page.getByTestId("create-case").tap();
   await page.getByTestId("error-banner").filter({ hasText: "Type a title" }).waitFor({ timeout: 5000 });
   await page.getByTestId("error-banner").getByRole("button").tap();
+
+  // Bad input the daemon refuses: a title over 200 characters; its words in a banner, the title kept.
+  const longTitle = "x".repeat(250);
+  await page.getByTestId("new-case-title").fill(longTitle);
+  await page.getByTestId("create-case").tap();
+  const b400 = page.getByTestId("error-banner").filter({ hasText: "longer than 200" });
+  await b400.waitFor({ timeout: 10000 });
+  step(`case create refused: ${await b400.locator(".text").textContent()}`);
+  expect(await page.getByTestId("new-case-title").inputValue() === longTitle, "the refused title stays in the field");
+  await b400.getByRole("button").tap();
 
   await page.getByTestId("new-case-title").fill("E2E phantom case");
   await shot("01-cases");
@@ -233,6 +251,59 @@ try {
   else await rp.getByTestId("sb-role").filter({ hasText: "Kiosk" }).waitFor({ timeout: 10000 });
   step("reviewer: logged in, read-only screens, audit trail with her views, logged out");
 
+  // ---- Bad input from the daemon's side, on a second daemon whose MRI cannot be loaded: the
+  // failed render is named on the picture and in a banner; then the daemon restarts: the
+  // link banner says it was lost, what was typed stays, and the UI says it is back.
+  const badT1 = path.join(tmp, "not-an-mri.nii.gz");
+  fs.writeFileSync(badT1, "this is not a NIfTI file\n");
+  const configB = path.join(tmp, "config-b.json");
+  const writeConfigB = (listen) => fs.writeFileSync(configB, JSON.stringify({
+    http: { listen, ui_dir: path.join(uiDir, "dist") }, state_dir: path.join(tmp, "state-b"),
+    data: { t1: badT1 }, jobs: { phantom_cases_at_start: 0 },
+  }));
+  writeConfigB("127.0.0.1:0");
+  let baseB;
+  ({ proc: daemonB, base: baseB } = await startDaemon(configB));
+  for (let i = 0; i < 100; i++) { // until the renderer has given up on the MRI
+    const st = await (await fetch(`${baseB}/api/status`)).json();
+    if (st.modules.renderer.state === "failed") break;
+    await new Promise((r) => setTimeout(r, 100));
+  }
+  const bp = await browser.newPage();
+  bp.on("pageerror", (e) => pageErrors.push(String(e)));
+  await bp.goto(`${baseB}/#/cases`);
+  await bp.getByTestId("sb-link").filter({ hasText: "Live" }).waitFor({ timeout: 15000 });
+  await bp.getByTestId("new-case-title").fill("Bad MRI case");
+  await bp.getByTestId("create-case").tap();
+  const rerr = bp.getByTestId("render-error");
+  await rerr.filter({ hasText: "could not be loaded" }).waitFor({ timeout: 20000 });
+  await bp.getByTestId("error-banner").filter({ hasText: "could not be loaded" }).waitFor({ timeout: 5000 });
+  await bp.getByTestId("sb-renderer").filter({ hasText: "failed" }).waitFor({ timeout: 5000 });
+  step(`failed render shown: ${await rerr.locator(".text").textContent()}`);
+  await shot("15-render-failed", bp);
+  await bp.getByTestId("render-retry").tap(); // the retry asks again and is refused again, still in words
+  await rerr.filter({ hasText: "could not be loaded" }).waitFor({ timeout: 10000 });
+
+  await bp.getByRole("link", { name: "Cases" }).first().tap();
+  await bp.getByTestId("new-case-title").fill("typed before the restart");
+  const portB = new URL(baseB).port;
+  await stopDaemon(daemonB);
+  const lostBanner = bp.getByTestId("link-banner").filter({ hasText: "connection to the daemon was lost" });
+  await lostBanner.waitFor({ timeout: 10000 });
+  await bp.getByTestId("sb-link").filter({ hasText: /Daemon unreachable|Connecting/ }).waitFor({ timeout: 5000 });
+  step(`daemon stopped: ${await lostBanner.locator(".text").textContent()}`);
+  await shot("16-link-lost", bp);
+  writeConfigB(`127.0.0.1:${portB}`);
+  ({ proc: daemonB } = await startDaemon(configB));
+  await bp.getByTestId("sb-link").filter({ hasText: "Live" }).waitFor({ timeout: 20000 });
+  await bp.getByTestId("link-banner").waitFor({ state: "hidden", timeout: 5000 });
+  await bp.getByTestId("notice-banner").filter({ hasText: "Reconnected" }).waitFor({ timeout: 5000 });
+  await bp.getByTestId("notice-banner").filter({ hasText: "daemon restarted" }).waitFor({ timeout: 5000 });
+  expect(await bp.getByTestId("new-case-title").inputValue() === "typed before the restart", "what was typed survives the restart");
+  await shot("17-link-back", bp);
+  step("daemon restarted: link lost and back, typed title kept");
+  await stopDaemon(daemonB);
+
   expect(pageErrors.length === 0, `no page errors (${pageErrors.join("; ")})`);
   step("PASS");
 } catch (e) {
@@ -241,10 +312,8 @@ try {
   try { const p = browser?.pages()[0]; if (p) await p.screenshot({ path: path.join(artDir, "failure.png") }); } catch {}
 } finally {
   try { await browser?.close(); } catch {}
-  if (daemon && daemon.exitCode === null) {
-    daemon.kill("SIGTERM");
-    await new Promise((r) => { const t = setTimeout(() => { daemon.kill("SIGKILL"); r(); }, 10000); daemon.on("exit", () => { clearTimeout(t); r(); }); });
-  }
+  await stopDaemon(daemon);
+  await stopDaemon(daemonB);
   fs.rmSync(tmp, { recursive: true, force: true });
 }
 process.exit(failed ? 1 : 0);

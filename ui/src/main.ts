@@ -6,6 +6,7 @@ import { PushChannel, type PushState } from "./push";
 import { fitFocalPx, RenderScheduler, renderSizes } from "./render_scheduler";
 import { drawNmiPlot, type NmiPoint } from "./nmiplot";
 import { h, table } from "./dom";
+import { LinkMonitor, restartNote } from "./link";
 import { canWrite, KIOSK, loadSession, roleLabel, saveSession, sessionFromLogin, wsUrl, type Session } from "./session";
 import { auditRows, fmtBytes, fmtTime, holdings, patientLine, registrationRows, type AuditEntry, type CaseRecord } from "./case_detail";
 
@@ -36,6 +37,26 @@ function showError(e: unknown): void {
     h("button", { class: "btn small", onclick: () => banner.remove() }, "Dismiss"));
   banners.append(banner);
 }
+
+/** The text ending as a sentence (the daemon's one-line errors have no full stop). */
+function sentence(t: string): string {
+  return /[.!?…)]$/.test(t.trim()) ? t.trim() : `${t.trim()}.`;
+}
+
+/** A passing notice (not an error): shown for 10 s, or until dismissed. */
+function showNotice(text: string): void {
+  const banner = h("div", { class: "banner info", role: "status", "data-testid": "notice-banner" },
+    h("span", { class: "text" }, text),
+    h("button", { class: "btn small", onclick: () => banner.remove() }, "Dismiss"));
+  banners.append(banner);
+  setTimeout(() => banner.remove(), 10000);
+}
+
+// The live link: a standing line while it is lost (not dismissable: it goes when the link is back).
+const linkBanner = h("div", { class: "banner warn", role: "alert", "data-testid": "link-banner", hidden: true }, h("span", { class: "text" }));
+banners.prepend(linkBanner);
+const linkMonitor = new LinkMonitor();
+let daemonStartedUtc: string | null = null;
 
 // ---- status bar --------------------------------------------------------------------------
 const sb = {
@@ -68,7 +89,7 @@ function applySession(): void {
 
 function startPush(): void {
   push?.stop();
-  push = new PushChannel(wsUrl(location, session), onNotify, onPushState);
+  push = new PushChannel(wsUrl(location, session), onNotify, onPushState, showError);
   push.start();
 }
 
@@ -133,7 +154,7 @@ function applyStatus(s: StatusSummary): void {
   const hz = typeof t.frame_rate_hz === "number" ? ` ${t.frame_rate_hz.toFixed(0)} Hz` : "";
   setPill(sb.tracker, `Tracker: ${t.state ?? "unknown"}${hz}`, t.state === "streaming" ? "ok" : t.state ? "warn" : "bad");
   const r = s.renderer ?? {};
-  setPill(sb.renderer, `Renderer: ${r.backend ?? "?"} (${r.state ?? "unknown"})`, r.state === "ready" ? "ok" : r.state === "failed" ? "bad" : "warn");
+  setPill(sb.renderer, r.state === "failed" ? "Renderer: failed (no volume)" : `Renderer: ${r.backend ?? "?"} (${r.state ?? "unknown"})`, r.state === "ready" ? "ok" : r.state === "failed" ? "bad" : "warn");
   const raw = s.jobs ?? {};
   const kinds = ("kinds" in raw && raw.kinds ? raw.kinds : raw) as Record<string, { queued?: number; running?: number | null }>;
   let running = 0, queued = 0;
@@ -155,7 +176,16 @@ function applyFrame(f: TrackerFrame): void {
 
 async function pollStatus(): Promise<void> {
   try {
-    const s = await apiJson<{ modules: Record<string, unknown> }>("GET", "/api/status");
+    const s = await apiJson<{ modules: Record<string, unknown>; started_utc?: string }>("GET", "/api/status");
+    const restarted = restartNote(daemonStartedUtc, s.started_utc);
+    if (s.started_utc) daemonStartedUtc = s.started_utc;
+    if (restarted) {
+      showNotice(restarted);
+      // The daemon keeps jobs in memory only: the old ones are gone with it.
+      jobs.clear();
+      nmiSeries.clear();
+      loadJobs();
+    }
     const m = s.modules as StatusSummary & Record<string, unknown>;
     applyStatus({ tracker: m.tracker as StatusSummary["tracker"], renderer: m.renderer as StatusSummary["renderer"], jobs: m.jobs as StatusSummary["jobs"] });
   } catch (e) {
@@ -167,6 +197,10 @@ async function pollStatus(): Promise<void> {
 function onPushState(s: PushState): void {
   if (needLogin) return;
   setPill(sb.link, s === "open" ? "Live" : s === "connecting" ? "Connecting…" : "Daemon unreachable", s === "open" ? "ok" : s === "connecting" ? "warn" : "bad");
+  const lv = linkMonitor.update(s);
+  linkBanner.hidden = lv.banner === null;
+  linkBanner.querySelector(".text")!.textContent = lv.banner ?? "";
+  if (lv.notice) showNotice(lv.notice);
   if (s === "open") { pollStatus(); loadJobs(); }
 }
 
@@ -420,7 +454,12 @@ function caseAudit(id: number, body: HTMLElement, alive: Alive, got: (c: CaseRec
 function caseView(id: number, body: HTMLElement, aliveFn: Alive, got: (c: CaseRecord) => void, missing: (e: unknown) => void,
                   onLeave: (f: () => void) => void): void {
   const img = h("img", { class: "render", alt: "Rendered view of the volume", "data-testid": "render-image", draggable: "false" });
-  const stage = h("div", { class: "render-stage", "data-testid": "render-stage" }, img);
+  // A failed render says so on the picture itself, with the daemon's reason and a retry.
+  const renderErrText = h("p", { class: "text" });
+  const retry = h("button", { class: "btn", "data-testid": "render-retry" }, "Try again");
+  const renderErr = h("div", { class: "render-error", role: "alert", "data-testid": "render-error", hidden: true },
+    h("strong", {}, "The picture could not be made."), renderErrText, retry);
+  const stage = h("div", { class: "render-stage", "data-testid": "render-stage" }, img, renderErr);
   const info = h("div", { class: "muted", "data-testid": "render-info" }, "Rendering…");
   const presets = h("div", { class: "choices", "data-testid": "presets" });
   const views = h("div", { class: "choices two" });
@@ -444,12 +483,19 @@ function caseView(id: number, body: HTMLElement, aliveFn: Alive, got: (c: CaseRe
       if (url) URL.revokeObjectURL(url);
       url = URL.createObjectURL(ri.blob);
       img.src = url;
+      renderErr.hidden = true;
       img.dataset.size = `${size.width}x${size.height}`;
       img.dataset.full = String(full);
       info.textContent = `${ri.width}x${ri.height} ${full ? "" : "preview "}in ${ri.renderMs.toFixed(0)} ms (${ri.renderer})`;
       timeline.push({ what: full ? "full" : "preview", t: performance.now(), size: `${size.width}x${size.height}` });
     },
-    onError: (e) => aliveFn() && showError(e),
+    onError: (e) => {
+      if (!aliveFn()) return;
+      showError(e);
+      renderErrText.textContent = `${sentence(plainMessage(e))} The view's settings are kept; try again when the daemon is ready.`;
+      renderErr.hidden = false;
+      info.textContent = "No picture: the render failed.";
+    },
     sizes: () => renderSizes(stage.clientWidth || 640, stage.clientHeight || 480, 1, { width: 1280, height: 1024 }),
   });
   onLeave(() => { if (url) URL.revokeObjectURL(url); });
@@ -465,6 +511,7 @@ function caseView(id: number, body: HTMLElement, aliveFn: Alive, got: (c: CaseRe
     presets.replaceChildren(...r.presets.map((p) => h("button", { class: "btn", "data-value": p, onclick: () => { v.preset = p; mark(presets, p); sched.now({ ...v }); } }, p.replace(/_/g, " "))));
     mark(presets, v.preset);
   }, showError);
+  retry.addEventListener("click", () => sched.now({ ...v }));
   apiJson<CaseRecord>("GET", `/api/cases/${id}`).then((c) => {
     if (!aliveFn()) return;
     got(c);

@@ -15,6 +15,7 @@ export class PushChannel {
     private readonly url: string,
     private readonly onNotify: (method: string, params: unknown) => void,
     private readonly onState: (s: PushState) => void,
+    private readonly onError: (e: Error) => void = () => {},
   ) {}
 
   start(): void {
@@ -43,7 +44,11 @@ export class PushChannel {
     ws.onopen = () => {
       this.retryMs = 1000;
       this.onState("open");
-      session.call("push.subscribe", { tracker_hz: 10, topics: ["tracker", "jobs", "status"] }).catch(() => {});
+      session.call("push.subscribe", { tracker_hz: 10, topics: ["tracker", "jobs", "status"] }).catch((e: unknown) => {
+        // A refused subscription leaves the status bar without live figures: say so (a closed
+        // socket is already on the link banner).
+        if (ws.readyState === WebSocket.OPEN) this.onError(new Error(`the live updates could not be subscribed (${e instanceof Error ? e.message : String(e)})`));
+      });
     };
     ws.onmessage = (ev) => {
       if (typeof ev.data === "string") session.handle(ev.data);
