@@ -103,9 +103,7 @@ json case_record_json(const CaseRecord& r) {
     return j;
 }
 
-namespace {
-
-std::int64_t id_param(const Request& r, const char* key = "id") {
+std::int64_t case_id_param(const Request& r, const char* key) {
     const auto it = r.params.find(key);
     if (it == r.params.end()) throw ApiError(400, "bad_request", std::string(key) + " missing");
     const std::string& s = it->second;
@@ -113,6 +111,8 @@ std::int64_t id_param(const Request& r, const char* key = "id") {
         throw ApiError(400, "bad_request", std::string(key) + " '" + s + "' is not a number");
     return std::stoll(s);
 }
+
+namespace {
 
 std::string str_field(const json& b, const char* key, bool required, const std::string& ctx, std::size_t max_len = 1024) {
     if (!b.contains(key)) {
@@ -298,7 +298,7 @@ void register_case_endpoints(EndpointRegistry& reg, CaseStore& store, const fs::
              }});
     reg.add({"GET", "/api/cases/{id}", "cases.get", Access::read, "A case with everything it holds (audited as case.view)",
              [st](const Request& r) {
-                 const auto id = id_param(r);
+                 const auto id = case_id_param(r);
                  return guarded([&] {
                      json j = case_record_json(st->get_case(id));
                      st->audit(actor_of(r.client), "case.view", id);
@@ -307,14 +307,14 @@ void register_case_endpoints(EndpointRegistry& reg, CaseStore& store, const fs::
              }});
     reg.add({"POST", "/api/cases/{id}/state", "cases.set_state", Access::write, "Move the case's workflow state: {state}",
              [st](const Request& r) {
-                 const auto id = id_param(r);
+                 const auto id = case_id_param(r);
                  only_fields(r.body, {"state", "id"}, "cases.set_state");
                  const std::string s = str_field(r.body, "state", true, "cases.set_state", 64);
                  return guarded([&] { return ok(case_summary_json(st->set_state(id, case_state_from_string(s), actor_of(r.client)))); });
              }});
     reg.add({"GET", "/api/cases/{id}/audit", "cases.audit", Access::read, "The case's audit trail, oldest first",
              [st](const Request& r) {
-                 const auto id = id_param(r);
+                 const auto id = case_id_param(r);
                  return guarded([&] {
                      st->get_case(id);  // 404 for an unknown case
                      json a = json::array();

@@ -17,6 +17,8 @@ cf::db::Actor actor_of(const Client& c);
 /// A case folder named relative to `cases_root` ("phantom/case_0000"): parts of
 /// [A-Za-z0-9_.-], no '..', must hold a case.json. ApiError 400 / 404 naming `field`.
 std::filesystem::path case_dir_from_name(const std::filesystem::path& cases_root, const nlohmann::json& v, const std::string& field);
+/// A numeric path parameter ("id", "photo_id", ...): 400 naming it when not a number.
+std::int64_t case_id_param(const Request& r, const char* key = "id");
 nlohmann::json case_summary_json(const cf::db::CaseSummary& s);
 nlohmann::json case_record_json(const cf::db::CaseRecord& r);
 
@@ -24,5 +26,11 @@ nlohmann::json case_record_json(const cf::db::CaseRecord& r);
 /// `work_dir`: scratch space for staged imports.
 void register_case_endpoints(EndpointRegistry& reg, cf::db::CaseStore& store, const std::filesystem::path& cases_dir,
                              const std::filesystem::path& work_dir, int session_ttl_s);
+
+/// The data of a case (case_data_api.cpp, docs/api/case-data.md): volume and photo uploads
+/// (raw bodies up to `max_upload_bytes`, read by core before they are stored), landmarks, ROI,
+/// registrations, result downloads, zip export and import. Scratch files go to `work_dir`.
+void register_case_data_endpoints(EndpointRegistry& reg, cf::db::CaseStore& store, const std::filesystem::path& work_dir,
+                                  std::int64_t max_upload_bytes);
 
 }  // namespace cf::daemon

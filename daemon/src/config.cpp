@@ -50,6 +50,8 @@ std::vector<OptionSpec> make_options() {
         {"state_dir", T::string, 0, 0, {}, "",
          "Folder for generated cases and job results; empty: $STATE_DIRECTORY (systemd StateDirectory=) or ~/.local/state/cortexfused"},
         {"store.dir", T::string, 0, 0, {}, "", "The case store's folder (SQLite database + blobs); empty: state_dir/store"},
+        {"store.max_upload_bytes", T::integer, 1024, 17179869184.0, {}, std::int64_t{1} << 30,
+         "Largest file uploaded to a case (volume, photo, case zip; 413 above it); held in memory while it is checked"},
         {"auth.session_ttl_s", T::integer, 60, 2592000, {}, 43200, "Lifetime of a login session (POST /api/login), seconds"},
         {"data.t1", T::string, 0, 0, {}, data + "/t1_head_mne_ecog.nii.gz", "The MRI rendered by /api/render and used for the phantom cases"},
         {"data.brain_mask", T::string, 0, 0, {}, data + "/brainmask_mne_ecog_binary.nii.gz", "Its brain mask (brain-only presets and phantom cases)"},
@@ -210,6 +212,7 @@ DaemonConfig parse_config(const nlohmann::json& j, const std::string& source) {
     c.push_queue_frames = v["push.queue_frames"].get<int>();
     c.state_dir = v["state_dir"].get<std::string>();
     c.store_dir = v["store.dir"].get<std::string>();
+    c.max_upload_bytes = v["store.max_upload_bytes"].get<std::int64_t>();
     c.session_ttl_s = v["auth.session_ttl_s"].get<int>();
     c.t1_path = v["data.t1"].get<std::string>();
     c.brain_mask_path = v["data.brain_mask"].get<std::string>();
@@ -282,7 +285,7 @@ nlohmann::json to_json(const DaemonConfig& c) {
               {"remote_requires_login", c.remote_requires_login}}},
             {"push", {{"default_tracker_hz", c.push_default_tracker_hz}, {"queue_frames", c.push_queue_frames}}},
             {"state_dir", c.state_dir},
-            {"store", {{"dir", c.store_dir}}},
+            {"store", {{"dir", c.store_dir}, {"max_upload_bytes", c.max_upload_bytes}}},
             {"auth", {{"session_ttl_s", c.session_ttl_s}}},
             {"data", {{"t1", c.t1_path}, {"brain_mask", c.brain_mask_path}}},
             {"tracker",

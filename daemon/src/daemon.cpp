@@ -259,6 +259,7 @@ void Daemon::start() {
     d.register_job_kinds();
     d.register_endpoints();
     register_case_endpoints(d.registry, *d.store, d.cases_dir, d.work_dir, d.cfg.session_ttl_s);
+    register_case_data_endpoints(d.registry, *d.store, d.work_dir, d.cfg.max_upload_bytes);
     cf::db::CaseStore* store = d.store.get();
     d.http->set_authenticator([store](const std::string& token, Client& c) {
         try {

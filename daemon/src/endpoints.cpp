@@ -1,6 +1,7 @@
 #include "cortexfuse/daemon/endpoints.hpp"
 
 #include <set>
+#include <sodium.h>
 
 namespace cf::daemon {
 
@@ -102,6 +103,14 @@ Response EndpointRegistry::dispatch_http(Request req) const {
     throw ApiError(404, "not_found", req.path + ": no such endpoint (GET /api/endpoints lists them)");
 }
 
+const Endpoint* EndpointRegistry::find(const std::string& method, const std::string& path) const {
+    for (const auto& e : endpoints_) {
+        std::map<std::string, std::string> params;
+        if (e.method == method && match_path(e.path, path, params)) return &e;
+    }
+    return nullptr;
+}
+
 Response EndpointRegistry::dispatch_rpc(const std::string& rpc, const nlohmann::json& params, const Client& client) const {
     for (const auto& e : endpoints_) {
         if (e.rpc != rpc) continue;
@@ -118,6 +127,27 @@ Response EndpointRegistry::dispatch_rpc(const std::string& rpc, const nlohmann::
                 else if (it.value().is_number_integer()) req.params[it.key()] = std::to_string(it.value().get<long long>());
             }
         req.body = params;
+        if (e.raw_body) {
+            // The file comes base64-encoded (standard alphabet, padding optional).
+            if (!params.is_object() || !params.contains("base64") || !params["base64"].is_string())
+                throw ApiError(400, "bad_request", rpc + " base64: missing (the file's bytes, base64-encoded)");
+            const std::string& b64 = params["base64"].get_ref<const std::string&>();
+            std::string bin(b64.size() / 4 * 3 + 3, '\0');
+            std::size_t n = 0;
+            if (sodium_base642bin(reinterpret_cast<unsigned char*>(bin.data()), bin.size(), b64.data(), b64.size(), "\r\n ", &n, nullptr,
+                                  sodium_base64_VARIANT_ORIGINAL) != 0 &&
+                sodium_base642bin(reinterpret_cast<unsigned char*>(bin.data()), bin.size(), b64.data(), b64.size(), "\r\n ", &n, nullptr,
+                                  sodium_base64_VARIANT_ORIGINAL_NO_PADDING) != 0)
+                throw ApiError(400, "bad_request", rpc + " base64: not valid base64");
+            bin.resize(n);
+            const std::int64_t limit = e.max_body_bytes;
+            if (limit > 0 && std::int64_t(n) > limit)
+                throw ApiError(413, "payload_too_large", rpc + ": file of " + std::to_string(n) + " bytes is over the limit of " + std::to_string(limit));
+            req.raw = std::move(bin);
+            req.body = nlohmann::json::object();
+            for (auto it = params.begin(); it != params.end(); ++it)
+                if (it.key() != "base64") req.body[it.key()] = it.value();
+        }
         return e.handler(req);
     }
     throw ApiError(404, "not_found", rpc + ": no such method (GET /api/endpoints lists them)");
@@ -126,7 +156,11 @@ Response EndpointRegistry::dispatch_rpc(const std::string& rpc, const nlohmann::
 nlohmann::json EndpointRegistry::list() const {
     nlohmann::json a = nlohmann::json::array();
     for (const auto& e : endpoints_)
-        a.push_back({{"method", e.method}, {"path", e.path}, {"rpc", e.rpc}, {"access", access_name(e.access)}, {"summary", e.summary}});
+    {
+        nlohmann::json x{{"method", e.method}, {"path", e.path}, {"rpc", e.rpc}, {"access", access_name(e.access)}, {"summary", e.summary}};
+        if (e.raw_body) x["body"] = "file";
+        a.push_back(std::move(x));
+    }
     return a;
 }
 

@@ -227,23 +227,30 @@ int HttpServer::handle_request(mg_connection* conn) {
         req.client = client_of(conn);
         req.params = parse_query(ri->query_string);
         // The body: refused above the limit without reading it; read to the limit otherwise.
+        // Upload endpoints (raw_body) have their own limit (store.max_upload_bytes).
+        const Endpoint* ep = registry_.find(method, uri);
+        const bool raw = ep && ep->raw_body;
+        const std::int64_t limit = ep && ep->max_body_bytes > 0 ? ep->max_body_bytes : cfg_.max_body_bytes;
+        const std::string limit_key = ep && ep->max_body_bytes > 0 ? "store.max_upload_bytes" : "http.max_body_bytes";
         const long long declared = ri->content_length;
-        if (declared > cfg_.max_body_bytes)
+        if (declared > limit)
             throw ApiError(413, "payload_too_large",
-                           "request body of " + std::to_string(declared) + " bytes is over the limit of " + std::to_string(cfg_.max_body_bytes) +
-                               " (http.max_body_bytes)");
+                           "request body of " + std::to_string(declared) + " bytes is over the limit of " + std::to_string(limit) + " (" + limit_key + ")");
         std::string body;
+        if (declared > 0) body.reserve(std::size_t(declared));
         if (declared != 0 && method != "GET" && method != "HEAD") {
             char buf[16384];
             for (;;) {
                 const int n = mg_read(conn, buf, sizeof buf);
                 if (n <= 0) break;
                 body.append(buf, std::size_t(n));
-                if (std::int64_t(body.size()) > cfg_.max_body_bytes)
-                    throw ApiError(413, "payload_too_large", "request body is over the limit of " + std::to_string(cfg_.max_body_bytes) + " bytes (http.max_body_bytes)");
+                if (std::int64_t(body.size()) > limit)
+                    throw ApiError(413, "payload_too_large", "request body is over the limit of " + std::to_string(limit) + " bytes (" + limit_key + ")");
             }
         }
-        if (!body.empty()) {
+        if (raw) {
+            req.raw = std::move(body);
+        } else if (!body.empty()) {
             try {
                 req.body = nlohmann::json::parse(body);
             } catch (const nlohmann::json::parse_error& e) {

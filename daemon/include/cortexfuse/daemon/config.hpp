@@ -46,6 +46,7 @@ struct DaemonConfig {
     std::string state_dir;                   ///< "" -> $STATE_DIRECTORY or ~/.local/state/cortexfused
     // case store and logins
     std::string store_dir;                   ///< "" -> state_dir/store
+    std::int64_t max_upload_bytes = std::int64_t{1} << 30;  ///< volume/photo/zip uploads
     int session_ttl_s = 43200;
     // data
     std::string t1_path, brain_mask_path;

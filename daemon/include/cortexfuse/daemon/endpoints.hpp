@@ -51,6 +51,7 @@ struct Request {
     std::string path;                            ///< as requested
     std::map<std::string, std::string> params;   ///< from the path pattern, then the query string
     nlohmann::json body;                         ///< parsed JSON body or RPC params (null when none)
+    std::string raw;                             ///< raw_body endpoints: the body's bytes (RPC: params.base64 decoded)
     Client client;
 };
 
@@ -77,6 +78,11 @@ struct Endpoint {
     Access access = Access::read;
     std::string summary;  ///< one line, listed by GET /api/endpoints
     Handler handler;
+    /// The body is a file (an upload), not JSON: it arrives in Request::raw, unparsed. Over
+    /// JSON-RPC the bytes come base64-encoded in params.base64.
+    bool raw_body = false;
+    /// Largest body this endpoint takes (413 above it); 0: http.max_body_bytes.
+    std::int64_t max_body_bytes = 0;
 };
 
 class EndpointRegistry {
@@ -89,6 +95,9 @@ public:
     /// taken from params ({"id": ...}).
     Response dispatch_rpc(const std::string& rpc, const nlohmann::json& params, const Client& client) const;
     nlohmann::json list() const;
+    /// The endpoint (method, path) would dispatch to, or nullptr; no access check. The HTTP
+    /// server asks before reading a body (its limit, raw or JSON).
+    const Endpoint* find(const std::string& method, const std::string& path) const;
     const std::vector<Endpoint>& endpoints() const { return endpoints_; }
 
 private:
