@@ -106,36 +106,93 @@ try {
   await shot("02-case-view");
   step(`rendered ${size1}`);
 
-  // Preset and a drag: the picture changes to another view, preview first then full.
+  // Preset and a drag: the head turns freely about the volume's centre (GET /api/render/volume),
+  // preview first then full.
   const n0 = await page.evaluate(() => window.cfRenderTimeline.length);
   await page.getByTestId("presets").getByRole("button", { name: "skin" }).tap();
   await page.waitForFunction((n) => window.cfRenderTimeline.slice(n).some((e) => e.what === "full"), n0, { timeout: 30000 });
+  await page.waitForFunction(() => document.querySelector('[data-testid="render-stage"]')?.dataset.orbit === "free", null, { timeout: 30000 });
   const box = await page.getByTestId("render-stage").boundingBox();
-  // A finger drag, as real touch events (CDP Input.dispatchTouchEvent), 70 px to the right.
+  // A finger drag, as real touch events (CDP Input.dispatchTouchEvent), 225 px to the right
+  // (0.4 degrees a pixel: from the left view round to the front).
   const cdp = await browser.newCDPSession(page);
-  const x0 = box.x + box.width / 2, y0 = box.y + box.height / 2;
-  await cdp.send("Input.dispatchTouchEvent", { type: "touchStart", touchPoints: [{ x: x0, y: y0 }] });
-  for (let i = 1; i <= 7; i++) {
-    await cdp.send("Input.dispatchTouchEvent", { type: "touchMove", touchPoints: [{ x: x0 + 10 * i, y: y0 }] });
+  const touchDrag = async (pts) => {
+    await cdp.send("Input.dispatchTouchEvent", { type: "touchStart", touchPoints: [pts[0]] });
+    for (const p of pts.slice(1)) { await cdp.send("Input.dispatchTouchEvent", { type: "touchMove", touchPoints: [p] }); await page.waitForTimeout(16); }
+    await cdp.send("Input.dispatchTouchEvent", { type: "touchEnd", touchPoints: [] });
+  };
+  const x0 = Math.round(box.x + box.width / 2 - 110), y0 = Math.round(box.y + box.height / 2);
+  const nDrag = await page.evaluate(() => window.cfRenderTimeline.length);
+  await touchDrag(Array.from({ length: 16 }, (_, i) => ({ x: x0 + 15 * i, y: y0 })));
+  await page.waitForFunction(() => Math.abs(Number(document.querySelector('[data-testid="render-stage"]').dataset.azimuth) + 90) < 1, null, { timeout: 5000 });
+  await page.waitForFunction(() => document.querySelector('.choices .btn.active[data-value="anterior"]') !== null, null, { timeout: 5000 });
+  await page.waitForFunction((n) => { const t = window.cfRenderTimeline.slice(n); const c = t.findIndex((e) => e.what === "change"); return c >= 0 && t.slice(c).some((e) => e.what === "full"); },
+                             nDrag, { timeout: 30000 });
+  await page.waitForTimeout(800); // the last full-size render after the finger rested
+  await shot("03-case-view-dragged");
+  // Two-step sizing: after the view changed, a small picture first, then the full one.
+  const timing = async (n, what) => {
+    const tl = (await page.evaluate(() => window.cfRenderTimeline)).slice(n);
+    const ci = tl.findIndex((e) => e.what === "change");
+    expect(ci >= 0, `the ${what} changed the view`);
+    const after = tl.slice(ci + 1);
+    const pi = after.findIndex((e) => e.what === "preview");
+    const fi = after.findIndex((e, i) => i > pi && e.what === "full");
+    expect(pi >= 0 && fi > pi, `a preview, then the full picture after the ${what} (${JSON.stringify(after)})`);
+    const [pw] = after[pi].size.split("x").map(Number), [fw] = after[fi].size.split("x").map(Number);
+    expect(pw < fw, `the preview (${after[pi].size}) is smaller than the full picture (${after[fi].size})`);
+    step(`${what} -> preview ${after[pi].size} after ${(after[pi].t - tl[ci].t).toFixed(0)} ms, full ${after[fi].size} after ${(after[fi].t - tl[ci].t).toFixed(0)} ms`);
+  };
+  await timing(nDrag, "drag");
+
+  // Pinch with two fingers: closer (the distance shrinks).
+  const d0 = Number(await page.getByTestId("render-stage").getAttribute("data-distance"));
+  const cx = Math.round(box.x + box.width / 2), cy = Math.round(box.y + box.height / 2);
+  await cdp.send("Input.dispatchTouchEvent", { type: "touchStart", touchPoints: [{ x: cx - 50, y: cy, id: 1 }, { x: cx + 50, y: cy, id: 2 }] });
+  for (let i = 1; i <= 5; i++) {
+    await cdp.send("Input.dispatchTouchEvent", { type: "touchMove", touchPoints: [{ x: cx - 50 - 10 * i, y: cy, id: 1 }, { x: cx + 50 + 10 * i, y: cy, id: 2 }] });
     await page.waitForTimeout(16);
   }
   await cdp.send("Input.dispatchTouchEvent", { type: "touchEnd", touchPoints: [] });
-  await page.waitForFunction(() => document.querySelector('.choices .btn.active[data-value="anterior"]') !== null, null, { timeout: 5000 });
-  await page.waitForFunction(() => document.querySelector('[data-testid="render-image"]')?.dataset.full === "true" &&
-                                   /anterior/.test(document.querySelector('.choices .btn.active[data-value="anterior"]')?.dataset.value ?? ""), null, { timeout: 30000 });
-  await page.waitForTimeout(1500); // the full-size render after the preview
-  await shot("03-case-view-dragged");
-  // Two-step sizing: after the view changed, a small picture first, then the full one.
-  const tl = await page.evaluate(() => window.cfRenderTimeline);
-  const ci = tl.findIndex((e) => e.what === "change");
-  expect(ci >= 0, "the drag changed the view");
-  const after = tl.slice(ci + 1);
-  const pi = after.findIndex((e) => e.what === "preview");
-  const fi = after.findIndex((e, i) => i > pi && e.what === "full");
-  expect(pi >= 0 && fi > pi, `a preview, then the full picture after the drag (${JSON.stringify(after)})`);
-  const [pw] = after[pi].size.split("x").map(Number), [fw] = after[fi].size.split("x").map(Number);
-  expect(pw < fw, `the preview (${after[pi].size}) is smaller than the full picture (${after[fi].size})`);
-  step(`drag -> preview ${after[pi].size} after ${(after[pi].t - tl[ci].t).toFixed(0)} ms, full ${after[fi].size} after ${(after[fi].t - tl[ci].t).toFixed(0)} ms`);
+  await page.waitForFunction((d) => Number(document.querySelector('[data-testid="render-stage"]').dataset.distance) < d * 0.8, d0, { timeout: 5000 });
+  step(`pinch: distance ${d0} -> ${await page.getByTestId("render-stage").getAttribute("data-distance")} mm`);
+
+  // Transfer function editor: start from cortex t1, drag its opacity point down by touch; the view
+  // re-renders with the custom tf while dragging (preview, then full) and the picture changes.
+  const imgHash = () => page.evaluate(async () => {
+    const b = new Uint8Array(await (await fetch(document.querySelector('[data-testid="render-image"]').src)).arrayBuffer());
+    let h = 0; for (const v of b) h = (h * 31 + v) >>> 0; return `${b.length}:${h}`;
+  });
+  const nPreset = await page.evaluate(() => window.cfRenderTimeline.length);
+  await page.getByTestId("presets").getByRole("button", { name: "cortex t1" }).tap();
+  await page.waitForFunction((n) => window.cfRenderTimeline.slice(n).some((e) => e.what === "full"), nPreset, { timeout: 30000 });
+  await page.waitForFunction(() => document.querySelector('[data-testid="render-image"]').dataset.tf === "cortex_t1", null, { timeout: 30000 });
+  const hashPreset = await imgHash();
+  const tfBox = await page.getByTestId("tf-canvas").boundingBox();
+  const npts = Number(await page.getByTestId("tf-canvas").getAttribute("data-points"));
+  const presetsJson = await (await fetch(`${base}/api/render/presets`)).json();
+  const op = presetsJson.transfer_functions.cortex_t1.opacity;
+  const mid = op.find((p) => p[1] > 0.2 && p[1] < 0.9) ?? op[op.length - 1]; // a point on the ramp
+  const PAD = 14; // tf_editor.ts: the plot inside the canvas
+  const px = Math.round(tfBox.x + PAD + mid[0] * (tfBox.width - 2 * PAD)), py = Math.round(tfBox.y + PAD + (1 - mid[1]) * (tfBox.height - 2 * PAD));
+  await shot("04-tf-editor-before");
+  const nTf = await page.evaluate(() => window.cfRenderTimeline.length);
+  await touchDrag(Array.from({ length: 8 }, (_, i) => ({ x: px + 3 * i, y: py + Math.round(((tfBox.y + tfBox.height - 4) - py) * i / 7) })));
+  await page.waitForFunction(() => document.querySelector('[data-testid="render-image"]').dataset.tf === "custom" &&
+                                   document.querySelector('[data-testid="render-image"]').dataset.full === "true", null, { timeout: 30000 });
+  await page.waitForTimeout(800);
+  expect(Number(await page.getByTestId("tf-canvas").getAttribute("data-points")) === npts, "dragging a point neither adds nor removes one");
+  expect(Number(await page.getByTestId("tf-canvas").getAttribute("data-selected")) >= 0, "the dragged point is selected");
+  const hashTf = await imgHash();
+  expect(hashTf !== hashPreset, "the edited transfer function renders another picture");
+  await timing(nTf, "tf drag");
+  // Colour and delete: a swatch recolours the selected point; Delete removes it.
+  await page.getByTestId("tf-swatches").getByRole("button", { name: "colour red" }).tap();
+  await page.getByTestId("tf-delete").tap();
+  await page.waitForFunction((n) => Number(document.querySelector('[data-testid="tf-canvas"]').dataset.points) === n - 1, npts, { timeout: 5000 });
+  await page.waitForTimeout(1200);
+  await shot("04-tf-editor-after");
+  step(`tf editor: ${npts} points, one dragged to opacity 0 (picture changed), recoloured, deleted`);
 
   // Back to the cases list: the new case is listed; search filters.
   await page.getByRole("link", { name: "Cases" }).first().tap();

@@ -7,6 +7,9 @@ import { fitFocalPx, RenderScheduler, renderSizes } from "./render_scheduler";
 import { drawNmiPlot, type NmiPoint } from "./nmiplot";
 import { h, table } from "./dom";
 import { LinkMonitor, restartNote } from "./link";
+import { dragOrbit, NAMED_VIEWS, namedViewOf, orbitPose, zoomOrbit, type Orbit, type Vec3 } from "./orbit";
+import { TfEditor } from "./tf_editor";
+import type { TfJson } from "./tf_model";
 import { canWrite, KIOSK, loadSession, roleLabel, saveSession, sessionFromLogin, wsUrl, type Session } from "./session";
 import { auditRows, fmtBytes, fmtTime, holdings, patientLine, registrationRows, type AuditEntry, type CaseRecord } from "./case_detail";
 
@@ -359,8 +362,9 @@ function casesScreen(): void {
 // a touch shows a new picture (window.cfRenderTimeline).
 const timeline: { what: string; t: number; size: string }[] = [];
 (window as unknown as { cfRenderTimeline: typeof timeline }).cfRenderTimeline = timeline;
-interface View { preset: string; opacity: number; view: string }
-const ORBIT = ["left", "anterior", "right", "posterior"];
+interface View { preset: string; opacity: number; orbit: Orbit; tf: TfJson | null; brainOnly: boolean }
+interface VolumeGeometry { center_lps_mm: Vec3; radius_mm: number; brain?: { center_lps_mm: Vec3; radius_mm: number } | null }
+const BRAIN_PRESETS = new Set(["cortex_t1", "surface_white"]);
 
 const CASE_TABS: [string, string][] = [["view", "3D view"], ["contents", "Contents"], ["audit", "Audit trail"]];
 
@@ -465,18 +469,46 @@ function caseView(id: number, body: HTMLElement, aliveFn: Alive, got: (c: CaseRe
   const views = h("div", { class: "choices two" });
   const opacityOut = h("span", { class: "value" }, "100 %");
   const opacity = h("input", { type: "range", min: 0, max: 100, step: 5, value: 100, class: "slider", "data-testid": "opacity" });
+  const brainBtn = h("button", { class: "btn", "data-testid": "tf-brain-only" }, "Brain only");
+  const tfTitle = h("span", { "data-testid": "tf-title" }, "");
+  const v: View = { preset: "cortex_t1", opacity: 1, orbit: { azimuthDeg: 0, elevationDeg: 0, distanceMm: 450 }, tf: null, brainOnly: true };
+  const editor = new TfEditor((tf, final) => {
+    v.tf = tf;
+    mark(presets, "");
+    tfTitle.textContent = ` (custom, from ${v.preset.replace(/_/g, " ")})`;
+    timeline.push({ what: "change", t: performance.now(), size: "" });
+    if (final) sched.now({ ...v }); else sched.interactive({ ...v });
+  });
   const side = h("aside", { class: "controls" },
     h("h2", {}, "Preset"), presets,
+    h("h2", {}, "Transfer function", tfTitle), editor.el, h("div", { class: "choices" }, brainBtn),
     h("h2", {}, "Opacity ", opacityOut), opacity,
     h("h2", {}, "View"), views,
-    h("p", { class: "muted" }, "Drag on the picture to turn the head."), info);
+    h("p", { class: "muted" }, "Drag on the picture to turn the head; pinch with two fingers to zoom."), info);
   body.append(h("div", { class: "case-layout" }, stage, side));
 
-  const v: View = { preset: "cortex_t1", opacity: 1, view: "left" };
+  // The volume's geometry for the free orbit (GET /api/render/volume; 503 while it loads: the
+  // named views are used meanwhile and the geometry is asked for again).
+  let geo: VolumeGeometry | null = null;
+  let geoTries = 0;
+  const loadGeo = () => {
+    apiJson<VolumeGeometry>("GET", "/api/render/volume").then((g) => { geo = g; stage.dataset.orbit = "free"; }, () => {
+      if (aliveFn() && ++geoTries < 30) setTimeout(loadGeo, 1000);
+    });
+  };
+  loadGeo();
+  const target = (view: View): Vec3 => (view.brainOnly && geo?.brain ? geo.brain.center_lps_mm : geo!.center_lps_mm);
+
   let url = "";
   const sched = new RenderScheduler<View>({
-    render: (view, size) => apiRender({ width: size.width, height: size.height, preset: view.preset, opacity: view.opacity, view: view.view,
-                                       distance_mm: 450, focal_px: fitFocalPx(size.width, size.height, 450, 95) }),
+    render: (view, size) => {
+      const req: Record<string, unknown> = { width: size.width, height: size.height, opacity: view.opacity,
+                                             focal_px: fitFocalPx(size.width, size.height, 450, 95) };
+      if (view.tf) { req.tf = view.tf; req.brain_only = view.brainOnly; } else req.preset = view.preset;
+      if (geo) req.T_camera_from_world = orbitPose(view.orbit, target(view));
+      else { req.view = namedViewOf(view.orbit) ?? "left"; req.distance_mm = view.orbit.distanceMm; }
+      return apiRender(req);
+    },
     onImage: (r, _view, size, full) => {
       if (!aliveFn()) return;
       const ri = r as RenderedImage;
@@ -486,6 +518,7 @@ function caseView(id: number, body: HTMLElement, aliveFn: Alive, got: (c: CaseRe
       renderErr.hidden = true;
       img.dataset.size = `${size.width}x${size.height}`;
       img.dataset.full = String(full);
+      img.dataset.tf = _view.tf ? "custom" : _view.preset;
       info.textContent = `${ri.width}x${ri.height} ${full ? "" : "preview "}in ${ri.renderMs.toFixed(0)} ms (${ri.renderer})`;
       timeline.push({ what: full ? "full" : "preview", t: performance.now(), size: `${size.width}x${size.height}` });
     },
@@ -501,15 +534,45 @@ function caseView(id: number, body: HTMLElement, aliveFn: Alive, got: (c: CaseRe
   onLeave(() => { if (url) URL.revokeObjectURL(url); });
 
   const mark = (box: HTMLElement, val: string) => box.querySelectorAll("button").forEach((b) => b.classList.toggle("active", b.dataset.value === val));
-  const setView = (name: string) => { v.view = name; mark(views, name); };
+  const showOrbit = () => {
+    mark(views, namedViewOf(v.orbit) ?? "");
+    stage.dataset.azimuth = v.orbit.azimuthDeg.toFixed(1);
+    stage.dataset.elevation = v.orbit.elevationDeg.toFixed(1);
+    stage.dataset.distance = v.orbit.distanceMm.toFixed(0);
+  };
   for (const name of ["left", "right", "anterior", "posterior", "superior", "inferior"])
-    views.append(h("button", { class: "btn", "data-value": name, onclick: () => { setView(name); sched.now({ ...v }); } }, name));
-  setView(v.view);
+    views.append(h("button", { class: "btn", "data-value": name, onclick: () => {
+      v.orbit = { ...v.orbit, ...NAMED_VIEWS[name] };
+      showOrbit();
+      sched.now({ ...v });
+    } }, name));
+  showOrbit();
+  const showBrain = () => { brainBtn.classList.toggle("active", v.brainOnly); brainBtn.textContent = v.brainOnly ? "Brain only: on" : "Brain only: off"; };
+  brainBtn.addEventListener("click", () => {
+    if (!v.tf) { showError(new Error("Brain only applies to an edited transfer function; the presets choose it themselves.")); return; }
+    v.brainOnly = !v.brainOnly;
+    showBrain();
+    sched.now({ ...v });
+  });
+  showBrain();
   opacity.addEventListener("input", () => { v.opacity = Number(opacity.value) / 100; opacityOut.textContent = `${opacity.value} %`; sched.interactive({ ...v }); });
 
-  apiJson<{ presets: string[] }>("GET", "/api/render/presets").then((r) => {
-    presets.replaceChildren(...r.presets.map((p) => h("button", { class: "btn", "data-value": p, onclick: () => { v.preset = p; mark(presets, p); sched.now({ ...v }); } }, p.replace(/_/g, " "))));
-    mark(presets, v.preset);
+  // Presets: each is also the starting point of the editor (its JSON from the daemon).
+  let tfs: Record<string, TfJson> = {};
+  const pickPreset = (p: string, render: boolean) => {
+    v.preset = p;
+    v.tf = null;
+    v.brainOnly = BRAIN_PRESETS.has(p);
+    mark(presets, p);
+    tfTitle.textContent = ` (${p.replace(/_/g, " ")})`;
+    if (tfs[p]) editor.load(tfs[p]);
+    showBrain();
+    if (render) sched.now({ ...v });
+  };
+  apiJson<{ presets: string[]; transfer_functions?: Record<string, TfJson> }>("GET", "/api/render/presets").then((r) => {
+    tfs = r.transfer_functions ?? {};
+    presets.replaceChildren(...r.presets.map((p) => h("button", { class: "btn", "data-value": p, onclick: () => pickPreset(p, true) }, p.replace(/_/g, " "))));
+    if (!v.tf) pickPreset(v.preset, false);
   }, showError);
   retry.addEventListener("click", () => sched.now({ ...v }));
   apiJson<CaseRecord>("GET", `/api/cases/${id}`).then((c) => {
@@ -518,24 +581,36 @@ function caseView(id: number, body: HTMLElement, aliveFn: Alive, got: (c: CaseRe
     sched.now({ ...v });
   }, missing);
 
-  // Drag: every 60 px sideways steps round the head, up/down looks from above/below.
-  let start: { x: number; y: number; view: string } | null = null;
-  stage.addEventListener("pointerdown", (e) => { start = { x: e.clientX, y: e.clientY, view: v.view }; stage.setPointerCapture(e.pointerId); });
-  stage.addEventListener("pointermove", (e) => {
-    if (!start) return;
-    const dx = e.clientX - start.x, dy = e.clientY - start.y;
-    let next = start.view;
-    if (Math.abs(dy) > 80 && Math.abs(dy) > Math.abs(dx)) next = dy < 0 ? "inferior" : "superior";
-    else {
-      const i0 = Math.max(0, ORBIT.indexOf(start.view));
-      const steps = Math.round(dx / 60);
-      next = ORBIT[(((i0 + steps) % 4) + 4) % 4];
-    }
-    if (next !== v.view) { setView(next); timeline.push({ what: "change", t: performance.now(), size: "" }); sched.interactive({ ...v }); }
+  // Touch: one finger orbits about the volume's centre (0.4 degrees a pixel), two fingers pinch
+  // to zoom (the distance); a wheel zooms too.
+  const fingers = new Map<number, { x: number; y: number }>();
+  let gesture: { orbit: Orbit; x: number; y: number; spread: number } | null = null;
+  const spread = () => { const [a, b] = [...fingers.values()]; return a && b ? Math.hypot(a.x - b.x, a.y - b.y) : 0; };
+  const begin = () => {
+    const [a] = [...fingers.values()];
+    gesture = a ? { orbit: { ...v.orbit }, x: a.x, y: a.y, spread: spread() } : null;
+  };
+  const changed = () => { showOrbit(); timeline.push({ what: "change", t: performance.now(), size: "" }); sched.interactive({ ...v }); };
+  stage.addEventListener("pointerdown", (e) => {
+    if (e.target instanceof HTMLButtonElement) return;
+    fingers.set(e.pointerId, { x: e.clientX, y: e.clientY });
+    stage.setPointerCapture(e.pointerId);
+    begin();
   });
-  const end = () => { start = null; };
+  stage.addEventListener("pointermove", (e) => {
+    if (!fingers.has(e.pointerId) || !gesture) return;
+    fingers.set(e.pointerId, { x: e.clientX, y: e.clientY });
+    if (fingers.size >= 2 && gesture.spread > 10) v.orbit = zoomOrbit(gesture.orbit, spread() / gesture.spread);
+    else if (fingers.size === 1) {
+      const [a] = [...fingers.values()];
+      v.orbit = dragOrbit(gesture.orbit, a.x - gesture.x, a.y - gesture.y);
+    } else return;
+    changed();
+  });
+  const end = (e: PointerEvent) => { fingers.delete(e.pointerId); begin(); };
   stage.addEventListener("pointerup", end);
   stage.addEventListener("pointercancel", end);
+  stage.addEventListener("wheel", (e) => { e.preventDefault(); v.orbit = zoomOrbit(v.orbit, Math.exp(-e.deltaY / 500)); changed(); }, { passive: false });
 }
 
 // ---- Jobs --------------------------------------------------------------------------------
