@@ -97,6 +97,7 @@ try {
   await page.getByTestId("create-case").tap();
   await page.waitForURL(/#\/case\/\d+$/, { timeout: 20000 });
   step(`case created: ${page.url()}`);
+  const createdId = Number(/case\/(\d+)/.exec(page.url())[1]);
 
   // Case view: a rendered picture at full size.
   const img = page.getByTestId("render-image");
@@ -235,9 +236,32 @@ try {
   await page.waitForFunction((n) => window.cfRenderTimeline.slice(n).some((e) => e.what === "full"), n1, { timeout: 30000 });
   await shot("08-case-view-1920");
 
-  // ---- A case of the store: import the phantom folder, see what it holds, register it by
-  // case_id (started and cancelled), the run and the audit trail in the case.
+  // ---- Uploads into the case made above: a text file as the photo (refused before upload, in
+  // words), bytes that are no volume (the daemon's 400), then the phantom's real photo.
   await page.setViewportSize({ width: 1280, height: 800 });
+  await page.evaluate((id) => { location.hash = `#/case/${id}/contents`; }, createdId);
+  await page.getByTestId("upload-photo-file").setInputFiles({ name: "notes.png", mimeType: "image/png", buffer: Buffer.from("this is not a picture\n") });
+  await page.getByTestId("upload-photo").tap();
+  const badPhoto = page.getByTestId("error-banner").filter({ hasText: "not a PNG or JPEG" });
+  await badPhoto.waitFor({ timeout: 10000 });
+  step(`wrong file type: ${await badPhoto.locator(".text").textContent()}`);
+  await page.getByTestId("upload-volume-file").setInputFiles({ name: "t1.nii.gz", mimeType: "application/gzip", buffer: Buffer.from("no MRI in here\n") });
+  await page.getByTestId("upload-volume").tap();
+  const badVol = page.getByTestId("error-banner").filter({ hasText: "t1.nii.gz" });
+  await badVol.waitFor({ timeout: 20000 });
+  step(`bad volume: ${await badVol.locator(".text").textContent()}`);
+  await shot("09-upload-refused");
+  await badPhoto.getByRole("button").tap();
+  await badVol.getByRole("button").tap();
+  const phantomDir = path.join(tmp, "state", "cases", "phantom", "case_0000");
+  await page.getByTestId("upload-photo-file").setInputFiles(path.join(phantomDir, JSON.parse(fs.readFileSync(path.join(phantomDir, "case.json"), "utf8")).photo));
+  await page.getByTestId("upload-photo").tap();
+  await page.getByTestId("case-holdings").filter({ hasText: "1 photo" }).waitFor({ timeout: 20000 });
+  step("photo uploaded into the new case");
+
+  // ---- A case of the store: import the phantom folder, see what it holds, move a landmark's
+  // photo twin and add an ROI point by touch (new revisions; an ROI of 2 points refused),
+  // register it by case_id to the end, the fused view and the audit trail.
   await page.getByRole("link", { name: "Cases" }).first().tap();
   await page.waitForFunction(() => [...document.querySelectorAll('[data-testid="import-folder"] option')].some((o) => o.value === "phantom/case_0000"), null, { timeout: 20000 });
   await page.getByTestId("import-folder").selectOption("phantom/case_0000");
@@ -249,22 +273,71 @@ try {
   for (const re of [/\d+ volumes? \(/, /1 photo/, /\d+ landmark pairs? \(revision 1\)/, /ROI with \d+ control points/, /Not registered yet/])
     expect(re.test(held), `the imported case's contents match ${re} (${held})`);
   expect(await page.getByTestId("case-landmarks").locator("tbody tr").count() >= 4, "the landmark pairs are listed");
-  await shot("09-case-contents");
+  await shot("10-case-contents");
   step(`imported case ${importedId}: ${held}`);
+
+  await page.getByTestId("case-tab-photo").tap();
+  const marks = page.getByTestId("photo-marks");
+  await page.waitForFunction(() => Number(document.querySelector('[data-testid="photo-marks"]')?.dataset.landmarks) >= 4 &&
+                                   document.querySelector('[data-testid="photo-image"]')?.naturalWidth > 0, null, { timeout: 20000 });
+  const nRoi0 = Number(await marks.getAttribute("data-roi-points"));
+  // Photo pixel -> screen point through the overlay's own transform.
+  const toScreen = (u, v) => page.evaluate(([u, v]) => {
+    const svg = document.querySelector('[data-testid="photo-marks"]');
+    const p = new DOMPoint(u, v).matrixTransform(svg.getScreenCTM());
+    return { x: Math.round(p.x), y: Math.round(p.y) };
+  }, [u, v]);
+  const lm0 = await page.evaluate(() => { const c = document.querySelector('[data-testid="photo-marks"] circle.lm'); return [Number(c.getAttribute("cx")), Number(c.getAttribute("cy"))]; });
+  const s0 = await toScreen(lm0[0], lm0[1]);
+  await touchDrag(Array.from({ length: 6 }, (_, i) => ({ x: s0.x + 3 * i, y: s0.y + 2 * i })));
+  await page.getByTestId("save-landmarks").tap();
+  await page.getByTestId("notice-banner").filter({ hasText: "Landmarks saved (revision 2)" }).waitFor({ timeout: 10000 });
+  const lm1 = await page.evaluate(() => { const c = document.querySelector('[data-testid="photo-marks"] circle.lm'); return [Number(c.getAttribute("cx")), Number(c.getAttribute("cy"))]; });
+  expect(Math.hypot(lm1[0] - lm0[0], lm1[1] - lm0[1]) > 5, `the dragged landmark moved on the photo (${lm0} -> ${lm1})`);
+  await page.getByTestId("mode-roi").tap();
+  const roiPts = await page.evaluate(() => [...document.querySelectorAll('[data-testid="photo-marks"] circle.roi-point')].map((c) => [Number(c.getAttribute("cx")), Number(c.getAttribute("cy"))]));
+  // A tap just outside the middle of the first edge adds a point there.
+  const [pa, pb] = [roiPts[0], roiPts[1]];
+  const edgeMid = [(pa[0] + pb[0]) / 2, (pa[1] + pb[1]) / 2];
+  const sm = await toScreen(edgeMid[0], edgeMid[1]);
+  await page.touchscreen.tap(sm.x, sm.y);
+  await page.waitForFunction((n) => Number(document.querySelector('[data-testid="photo-marks"]').dataset.roiPoints) === n + 1, nRoi0, { timeout: 5000 });
+  await page.getByTestId("save-roi").tap();
+  await page.getByTestId("notice-banner").filter({ hasText: "ROI saved (revision 2)" }).waitFor({ timeout: 10000 });
+  await shot("11-photo-marks");
+  // Bad input: an ROI of two points is refused by the daemon, in its words; nothing stored.
+  await page.getByTestId("roi-clear").tap();
+  const c1 = await toScreen(100, 100), c2 = await toScreen(300, 300);
+  await page.touchscreen.tap(c1.x, c1.y);
+  await page.touchscreen.tap(c2.x, c2.y);
+  await page.getByTestId("save-roi").tap();
+  const badRoi = page.getByTestId("error-banner").filter({ hasText: /roi/i });
+  await badRoi.waitFor({ timeout: 10000 });
+  step(`landmark moved and ROI point added (revision 2 each); 2-point ROI refused: ${await badRoi.locator(".text").textContent()}`);
+  await badRoi.getByRole("button").tap();
+
+  await page.getByTestId("case-tab-contents").tap();
+  await page.getByTestId("case-holdings").filter({ hasText: `ROI with ${nRoi0 + 1} control points (revision 2)` }).waitFor({ timeout: 20000 });
   await page.getByTestId("case-register").tap();
   await page.waitForURL(/#\/jobs$/, { timeout: 10000 });
-  const caseJob = page.locator(`[data-testid="job-card"][data-state="running"][data-case-id="${importedId}"]`);
-  await caseJob.filter({ hasText: /NMI \d\.\d{4}/ }).waitFor({ timeout: 60000 });
-  await caseJob.getByTestId("cancel-job").tap();
-  await page.locator(`[data-testid="job-card"][data-state="cancelled"][data-case-id="${importedId}"]`).waitFor({ timeout: 30000 });
+  const tReg = Date.now();
+  await page.locator(`[data-testid="job-card"][data-state="succeeded"][data-case-id="${importedId}"]`).waitFor({ timeout: 180000 });
+  step(`registration of case ${importedId} succeeded in ${((Date.now() - tReg) / 1000).toFixed(1)} s`);
   await page.evaluate((id) => { location.hash = `#/case/${id}/contents`; }, importedId);
-  await page.getByTestId("case-registrations").filter({ hasText: "cancelled" }).waitFor({ timeout: 20000 });
+  await page.getByTestId("case-registrations").filter({ hasText: "succeeded" }).waitFor({ timeout: 20000 });
+  await page.getByTestId("case-tab-fused").tap();
+  await page.waitForFunction(() => document.querySelector('[data-testid="fused-model"]')?.dataset.full === "true" &&
+                                   document.querySelector('[data-testid="fused-model"]').naturalWidth > 100 &&
+                                   document.querySelector('[data-testid="fused-photo"]').naturalWidth > 100, null, { timeout: 30000 });
+  step(`fused view: ${await page.getByTestId("fused-info").textContent()}`);
+  await shot("12-fused");
   await page.getByTestId("case-tab-audit").tap();
   await page.getByTestId("case-audit").waitFor({ timeout: 20000 });
   const auditKiosk = await page.getByTestId("case-audit").textContent();
-  expect(/case\.view/.test(auditKiosk) && /registration/.test(auditKiosk), `the audit trail lists the views and the registration (${auditKiosk.slice(0, 400)})`);
-  await shot("10-case-audit");
-  step("case registered by case_id (cancelled), run and audit trail shown");
+  for (const a of ["case.view", "registration.add", "landmarks.set", "roi.set", "photo.download"])
+    expect(auditKiosk.includes(a), `the audit trail lists ${a} (${auditKiosk.slice(0, 400)})`);
+  await shot("13-case-audit");
+  step("case registered by case_id, fused view and audit trail shown");
 
   // ---- Review: a reviewer logs in (from another host when this machine has a non-loopback
   // address, else on the kiosk with its Log in button) and sees everything read-only.
@@ -281,7 +354,7 @@ try {
   await rp.getByTestId("login-password").fill("not-her-password");
   await rp.getByTestId("login-submit").tap();
   await rp.getByTestId("login-error").filter({ hasText: "Wrong user name or password" }).waitFor({ timeout: 10000 });
-  await shot("11-login-wrong-password", rp);
+  await shot("12-login-wrong-password", rp);
   await rp.getByTestId("login-password").fill("review-pass-1");
   await rp.getByTestId("login-submit").tap();
   await rp.getByTestId("sb-role").filter({ hasText: "rita (reviewer, read-only)" }).waitFor({ timeout: 10000 });
@@ -289,16 +362,21 @@ try {
   await rp.getByTestId("case-row").first().waitFor({ timeout: 15000 });
   await rp.getByTestId("read-only-note").waitFor({ timeout: 5000 });
   expect(await rp.getByTestId("create-case").count() === 0 && await rp.getByTestId("import-case").count() === 0, "a reviewer gets no create or import");
-  await shot("12-review-cases", rp);
+  await shot("13-review-cases", rp);
   await rp.evaluate((id) => { location.hash = `#/case/${id}/contents`; }, importedId);
-  await rp.getByTestId("case-registrations").filter({ hasText: "cancelled" }).waitFor({ timeout: 20000 });
-  expect(await rp.getByTestId("case-register").count() === 0, "a reviewer gets no Start registration");
-  await shot("13-review-contents", rp);
+  await rp.getByTestId("case-registrations").filter({ hasText: "succeeded" }).waitFor({ timeout: 20000 });
+  expect(await rp.getByTestId("case-register").count() === 0 && await rp.getByTestId("upload-photo").count() === 0, "a reviewer gets no Start registration or uploads");
+  await shot("14-review-contents", rp);
+  await rp.getByTestId("case-tab-photo").tap();
+  await rp.waitForFunction(() => Number(document.querySelector('[data-testid="photo-marks"]')?.dataset.landmarks) >= 4, null, { timeout: 20000 });
+  expect(await rp.getByTestId("save-landmarks").count() === 0 && await rp.getByTestId("save-roi").count() === 0, "a reviewer cannot save marks");
+  await rp.getByTestId("case-tab-fused").tap();
+  await rp.waitForFunction(() => document.querySelector('[data-testid="fused-model"]')?.dataset.full === "true", null, { timeout: 30000 });
   await rp.getByTestId("case-tab-view").tap();
   await rp.waitForFunction(() => document.querySelector('[data-testid="render-image"]')?.dataset.full === "true", null, { timeout: 30000 });
   await rp.getByTestId("case-tab-audit").tap();
   await rp.getByTestId("case-audit").filter({ hasText: "rita" }).waitFor({ timeout: 20000 });
-  await shot("14-review-audit", rp);
+  await shot("15-review-audit", rp);
   await rp.getByRole("link", { name: "Jobs" }).tap();
   await rp.getByTestId("job-card").first().waitFor({ timeout: 15000 });
   expect(await rp.getByTestId("start-register").count() === 0, "a reviewer gets no Start registration on Jobs");
@@ -337,7 +415,7 @@ try {
   await bp.getByTestId("error-banner").filter({ hasText: "could not be loaded" }).waitFor({ timeout: 5000 });
   await bp.getByTestId("sb-renderer").filter({ hasText: "failed" }).waitFor({ timeout: 5000 });
   step(`failed render shown: ${await rerr.locator(".text").textContent()}`);
-  await shot("15-render-failed", bp);
+  await shot("16-render-failed", bp);
   await bp.getByTestId("render-retry").tap(); // the retry asks again and is refused again, still in words
   await rerr.filter({ hasText: "could not be loaded" }).waitFor({ timeout: 10000 });
 
@@ -349,7 +427,7 @@ try {
   await lostBanner.waitFor({ timeout: 10000 });
   await bp.getByTestId("sb-link").filter({ hasText: /Daemon unreachable|Connecting/ }).waitFor({ timeout: 5000 });
   step(`daemon stopped: ${await lostBanner.locator(".text").textContent()}`);
-  await shot("16-link-lost", bp);
+  await shot("17-link-lost", bp);
   writeConfigB(`127.0.0.1:${portB}`);
   ({ proc: daemonB } = await startDaemon(configB));
   await bp.getByTestId("sb-link").filter({ hasText: "Live" }).waitFor({ timeout: 20000 });
@@ -357,7 +435,7 @@ try {
   await bp.getByTestId("notice-banner").filter({ hasText: "Reconnected" }).waitFor({ timeout: 5000 });
   await bp.getByTestId("notice-banner").filter({ hasText: "daemon restarted" }).waitFor({ timeout: 5000 });
   expect(await bp.getByTestId("new-case-title").inputValue() === "typed before the restart", "what was typed survives the restart");
-  await shot("17-link-back", bp);
+  await shot("18-link-back", bp);
   step("daemon restarted: link lost and back, typed title kept");
   await stopDaemon(daemonB);
 

@@ -49,10 +49,13 @@ export function errorFromAnswer(method: string, path: string, status: number, bo
   return new ApiError(status, code, message);
 }
 
-async function send(fetchImpl: FetchLike, method: string, path: string, body?: unknown): Promise<Response> {
+async function send(fetchImpl: FetchLike, method: string, path: string, body?: unknown, raw?: Blob | ArrayBuffer): Promise<Response> {
   const init: RequestInit = { method, headers: {} };
   if (auth.token) (init.headers as Record<string, string>)["Authorization"] = `Bearer ${auth.token}`;
-  if (body !== undefined) {
+  if (raw !== undefined) {
+    init.body = raw;
+    (init.headers as Record<string, string>)["Content-Type"] = "application/octet-stream";
+  } else if (body !== undefined) {
     init.body = JSON.stringify(body);
     (init.headers as Record<string, string>)["Content-Type"] = "application/json";
   }
@@ -83,6 +86,22 @@ export async function apiJson<T>(method: string, path: string, body?: unknown, f
   }
 }
 
+/** Uploads a file's bytes as the body (the case data endpoints); resolves to the JSON answer. */
+export async function apiUpload<T>(path: string, bytes: Blob | ArrayBuffer, fetchImpl: FetchLike = fetch): Promise<T> {
+  const res = await send(fetchImpl, "POST", path, undefined, bytes);
+  const text = await res.text();
+  try {
+    return JSON.parse(text) as T;
+  } catch {
+    throw new ApiError(res.status, "bad_answer", `POST ${path}: the daemon's answer is not JSON.`);
+  }
+}
+
+/** GET of a file (a photo, a result) as a Blob, with the session's token (an <img src> could not send it). */
+export async function apiBlob(path: string, fetchImpl: FetchLike = fetch): Promise<Blob> {
+  return (await send(fetchImpl, "GET", path)).blob();
+}
+
 export interface RenderedImage {
   blob: Blob;
   width: number;
@@ -104,9 +123,17 @@ export async function apiRender(body: Record<string, unknown>, fetchImpl: FetchL
   };
 }
 
+/** A message for the user written by the UI itself (a check before a request): shown as it is. */
+export class UserMessage extends Error {
+  constructor(message: string) {
+    super(message);
+    this.name = "UserMessage";
+  }
+}
+
 /** One line for an error banner, whatever was thrown. */
 export function plainMessage(e: unknown): string {
-  if (e instanceof ApiError) return e.message;
+  if (e instanceof ApiError || e instanceof UserMessage) return e.message;
   if (e instanceof Error) return `Something went wrong: ${e.message}`;
   return `Something went wrong: ${String(e)}`;
 }

@@ -1,7 +1,8 @@
 // CortexFuse kiosk UI: status bar, login (remote review), cases, case view with a rendered
 // volume, the case's contents and audit trail, jobs.
 import "./style.css";
-import { ApiError, apiJson, apiRender, auth, plainMessage, type RenderedImage } from "./api";
+import { ApiError, UserMessage, apiBlob, apiJson, apiRender, apiUpload, auth, plainMessage, type RenderedImage } from "./api";
+import { cardinalPath, clampPx, defaultCamera, imageKind, insertRoiPoint, nearest, type Px } from "./photo_marks";
 import { PushChannel, type PushState } from "./push";
 import { fitFocalPx, RenderScheduler, renderSizes } from "./render_scheduler";
 import { drawNmiPlot, type NmiPoint } from "./nmiplot";
@@ -324,7 +325,7 @@ function casesScreen(): void {
   const create = async (ev: Event) => {
     ev.preventDefault();
     const t = title.value.trim();
-    if (!t) { showError(new Error("Type a title for the new case first.")); return; }
+    if (!t) { showError(new UserMessage("Type a title for the new case first.")); return; }
     try {
       const c = await apiJson<CaseSummary>("POST", "/api/cases", { title: t });
       title.value = "";
@@ -337,7 +338,7 @@ function casesScreen(): void {
     const folder = h("select", { class: "field grow", "data-testid": "import-folder" });
     const importBtn = h("button", { class: "btn", type: "button", "data-testid": "import-case" }, "Import case folder");
     importBtn.addEventListener("click", async () => {
-      if (!folder.value) { showError(new Error("There is no case folder to import yet.")); return; }
+      if (!folder.value) { showError(new UserMessage("There is no case folder to import yet.")); return; }
       importBtn.disabled = true;
       try {
         const c = await apiJson<CaseSummary>("POST", "/api/cases/import", { folder: folder.value });
@@ -366,7 +367,7 @@ interface View { preset: string; opacity: number; orbit: Orbit; tf: TfJson | nul
 interface VolumeGeometry { center_lps_mm: Vec3; radius_mm: number; brain?: { center_lps_mm: Vec3; radius_mm: number } | null }
 const BRAIN_PRESETS = new Set(["cortex_t1", "surface_white"]);
 
-const CASE_TABS: [string, string][] = [["view", "3D view"], ["contents", "Contents"], ["audit", "Audit trail"]];
+const CASE_TABS: [string, string][] = [["view", "3D view"], ["contents", "Contents"], ["photo", "Photo & marks"], ["fused", "Fused"], ["audit", "Audit trail"]];
 
 /** The case's header (back, title, state) and its sub-screens; `onCase` gets the record, `onMissing`
  *  runs when it cannot be read (after the banner). */
@@ -391,6 +392,8 @@ function caseScreen(id: number, sub: string): void {
   };
   if (sub === "contents") caseContents(id, body, () => alive, got, missing);
   else if (sub === "audit") caseAudit(id, body, () => alive, got, missing);
+  else if (sub === "photo") casePhoto(id, body, () => alive, got, missing, (f) => { const prev = leaveScreen; leaveScreen = () => { prev?.(); f(); }; });
+  else if (sub === "fused") caseFused(id, body, () => alive, got, missing, (f) => { const prev = leaveScreen; leaveScreen = () => { prev?.(); f(); }; });
   else caseView(id, body, () => alive, got, missing, (f) => { const prev = leaveScreen; leaveScreen = () => { prev?.(); f(); }; });
 }
 
@@ -440,8 +443,265 @@ function caseContents(id: number, body: HTMLElement, alive: Alive, got: (c: Case
       });
       parts.unshift(h("div", { class: "toolbar", "data-write": "" }, reg,
         h("span", { class: "muted" }, ready ? "Registers the case's volume with its photo." : "Needs a volume and a photo first.")));
+      parts.push(h("h2", {}, "Add data"), uploadForms(id));
     }
     body.replaceChildren(...parts);
+  }, missing);
+}
+
+/** Upload a volume (NIfTI, NRRD, MetaImage; with its modality) or a photo (PNG, JPEG; its
+ *  camera from the picture's size and a focal length) into the case; the daemon checks both. */
+function uploadForms(id: number): HTMLElement {
+  const volFile = h("input", { type: "file", class: "field grow", accept: ".nii,.nii.gz,.nrrd,.mha,.gz", "data-testid": "upload-volume-file" });
+  const volMod = h("select", { class: "field", "data-testid": "upload-volume-modality" }, ...["T1", "CT", "fMRI", "mask"].map((m) => h("option", { value: m }, m)));
+  const volBtn = h("button", { class: "btn", type: "button", "data-testid": "upload-volume" }, "Upload volume");
+  const photoFile = h("input", { type: "file", class: "field grow", accept: "image/png,image/jpeg,.png,.jpg,.jpeg", "data-testid": "upload-photo-file" });
+  const focal = h("input", { type: "number", class: "field narrow", min: 10, max: 100000, step: 1, value: 1400, "data-testid": "upload-photo-focal", title: "focal length (px)" });
+  const photoBtn = h("button", { class: "btn", type: "button", "data-testid": "upload-photo" }, "Upload photo");
+  const status = h("p", { class: "muted", "data-testid": "upload-status" }, "");
+  const busy = async (btn: HTMLButtonElement, what: string, f: () => Promise<void>) => {
+    btn.disabled = true;
+    status.textContent = `${what}…`;
+    try { await f(); status.textContent = ""; route(); } catch (e) { status.textContent = ""; showError(e); } finally { btn.disabled = false; }
+  };
+  volBtn.addEventListener("click", () => {
+    const f = volFile.files?.[0];
+    if (!f) { showError(new UserMessage("Choose the volume file first (NIfTI .nii/.nii.gz, NRRD or MetaImage .mha).")); return; }
+    busy(volBtn, `Uploading ${f.name} (${fmtBytes(f.size)})`, async () => {
+      await apiUpload(`/api/cases/${id}/volumes?name=${encodeURIComponent(f.name)}&modality=${encodeURIComponent(volMod.value)}`, f);
+    });
+  });
+  photoBtn.addEventListener("click", () => {
+    const f = photoFile.files?.[0];
+    if (!f) { showError(new UserMessage("Choose the photo file first (PNG or JPEG).")); return; }
+    busy(photoBtn, `Uploading ${f.name}`, async () => {
+      if (!imageKind(new Uint8Array(await f.slice(0, 16).arrayBuffer())))
+        throw new UserMessage(`photo ${f.name}: not a PNG or JPEG picture (its first bytes say otherwise). Choose the photo file itself.`);
+      let bmp: ImageBitmap;
+      try { bmp = await createImageBitmap(f); } catch { throw new UserMessage(`photo ${f.name}: the picture cannot be decoded (damaged or cut short).`); }
+      const cam = defaultCamera(bmp.width, bmp.height, Number(focal.value) || 1400);
+      bmp.close();
+      await apiUpload(`/api/cases/${id}/photos?name=${encodeURIComponent(f.name)}&camera=${encodeURIComponent(JSON.stringify(cam))}`, f);
+    });
+  });
+  return h("div", { class: "uploads", "data-write": "" },
+    h("div", { class: "toolbar" }, volFile, volMod, volBtn),
+    h("div", { class: "toolbar" }, photoFile, h("label", { class: "muted" }, "focal px"), focal, photoBtn), status);
+}
+
+type OnLeave = (f: () => void) => void;
+
+/** The case's newest photo with its landmark twins and the ROI: view for everyone, edit by touch
+ *  for writers (drag a landmark's photo pixel; tap to add ROI points, drag, delete), saved as a
+ *  new revision (the daemon validates against the photo). */
+function casePhoto(id: number, body: HTMLElement, alive: Alive, got: (c: CaseRecord) => void, missing: (e: unknown) => void, onLeave: OnLeave): void {
+  body.append(h("p", { class: "muted" }, "Loading…"));
+  const writer = canWrite(session);
+  apiJson<CaseRecord>("GET", `/api/cases/${id}`).then(async (c) => {
+    if (!alive()) return;
+    got(c);
+    const photos = [...(c.photos ?? [])].sort((a, b) => b.id - a.id);
+    if (!photos.length) { body.replaceChildren(h("p", { class: "muted", "data-testid": "no-photo" }, "No photo yet. Add one in Contents.")); return; }
+    const photo = photos[0];
+    const W = photo.intrinsics?.width ?? 640, H = photo.intrinsics?.height ?? 480;
+    let blob: Blob;
+    try { blob = await apiBlob(`/api/cases/${id}/photos/${photo.id}`); } catch (e) { showError(e); return; }
+    if (!alive()) return;
+    const url = URL.createObjectURL(blob);
+    onLeave(() => URL.revokeObjectURL(url));
+    const NS = "http://www.w3.org/2000/svg";
+    const svg = document.createElementNS(NS, "svg");
+    svg.setAttribute("viewBox", `-0.5 -0.5 ${W} ${H}`);
+    svg.setAttribute("preserveAspectRatio", "xMidYMid meet");
+    svg.setAttribute("class", "marks");
+    svg.setAttribute("data-testid", "photo-marks");
+    const stage = h("div", { class: "photo-stage", "data-testid": "photo-stage" },
+      h("img", { class: "photo", src: url, alt: `Photo ${photo.original_name}`, draggable: "false", "data-testid": "photo-image" }));
+    stage.append(svg);
+
+    // State: the landmark pairs (the world point stays, the photo pixel can move) and the ROI.
+    let lms = (c.landmarks?.points ?? []).map((p) => ({ name: p.name, world_mm: p.world_mm, pixel: [p.pixel[0], p.pixel[1]] as Px }));
+    let roi: Px[] = (c.roi?.roi.points ?? []).map((p) => [p[0], p[1]] as Px);
+    const tension = c.roi?.roi.tension ?? 0;
+    let mode: "landmarks" | "roi" = "landmarks";
+    let sel = -1;
+    let dirtyL = false, dirtyR = false;
+    const info = h("p", { class: "muted", "data-testid": "photo-info" });
+    const list = h("div", { class: "list compact", "data-testid": "landmark-list" });
+    const saveL = h("button", { class: "btn primary", "data-testid": "save-landmarks", "data-write": "" }, "Save landmarks");
+    const saveR = h("button", { class: "btn primary", "data-testid": "save-roi", "data-write": "" }, "Save ROI");
+    const delR = h("button", { class: "btn", "data-testid": "roi-delete", "data-write": "" }, "Delete point");
+    const clearR = h("button", { class: "btn", "data-testid": "roi-clear", "data-write": "" }, "Clear ROI");
+    const modeBox = h("div", { class: "choices" });
+    const lmPanel = h("div", {}, h("h2", {}, "Landmark pairs"), list, writer ? h("div", { class: "toolbar" }, saveL) : "",
+      h("p", { class: "muted" }, writer ? "Drag a numbered mark to move the photo twin of that landmark; its point on the model stays. Picking new points on the model needs a surface pick from the daemon (not there yet)." : "Read-only."));
+    const roiPanel = h("div", {}, h("h2", {}, "ROI (closed spline)"),
+      writer ? h("div", { class: "choices" }, delR, clearR, saveR) : "",
+      h("p", { class: "muted" }, writer ? "Tap on the photo to add a control point (it goes into the nearest edge), drag one to move it, tap it and Delete point to remove it." : "Read-only."));
+    const side = h("aside", { class: "controls" }, h("h2", {}, "Mark"), modeBox, lmPanel, roiPanel, info);
+    body.replaceChildren(h("div", { class: "case-layout" }, stage, side));
+
+    const scale = () => { const r = svg.getBoundingClientRect(); return Math.min(r.width / W, r.height / H) || 1; };
+    const toPx = (e: PointerEvent): Px => {
+      const m = svg.getScreenCTM();
+      if (!m) return [0, 0];
+      const p = new DOMPoint(e.clientX, e.clientY).matrixTransform(m.inverse());
+      return [p.x, p.y];
+    };
+    const draw = () => {
+      const k = scale(), r = 14 / k, hit = 24 / k;
+      svg.replaceChildren();
+      const el = (tag: string, attrs: Record<string, string | number>) => { const x = document.createElementNS(NS, tag); for (const [a, v] of Object.entries(attrs)) x.setAttribute(a, String(v)); svg.append(x); return x; };
+      if (roi.length) {
+        el("path", { d: cardinalPath(roi, tension), class: `roi-path${mode === "roi" ? " active" : ""}`, "stroke-width": 3 / k, "data-testid": "roi-path" });
+        if (mode === "roi") roi.forEach((p, i) => el("circle", { cx: p[0], cy: p[1], r: i === sel ? r * 1.2 : r * 0.8, class: `roi-point${i === sel ? " sel" : ""}`, "stroke-width": 2 / k }));
+      }
+      lms.forEach((l, i) => {
+        el("circle", { cx: l.pixel[0], cy: l.pixel[1], r: mode === "landmarks" && i === sel ? r * 1.2 : r, class: `lm${mode === "landmarks" && i === sel ? " sel" : ""}`, "stroke-width": 2 / k });
+        const t = el("text", { x: l.pixel[0], y: l.pixel[1] + 5 / k, "font-size": 14 / k, class: "lm-label" });
+        t.textContent = String(i + 1);
+      });
+      void hit;
+      svg.dataset.landmarks = String(lms.length);
+      svg.dataset.roiPoints = String(roi.length);
+      svg.dataset.mode = mode;
+      saveL.disabled = !dirtyL;
+      saveR.disabled = !dirtyR;
+      delR.disabled = mode !== "roi" || sel < 0;
+      info.textContent = `${photo.original_name}, ${W}x${H} px · ${lms.length} landmark pairs · ROI ${roi.length} points${dirtyL || dirtyR ? " · unsaved changes" : ""}`;
+    };
+    const drawList = () => {
+      list.replaceChildren(...lms.map((l, i) => {
+        const name = h("input", { type: "text", class: "field grow", value: l.name, "aria-label": `landmark ${i + 1} name`, "data-testid": "landmark-name" });
+        name.readOnly = !writer;
+        name.addEventListener("input", () => { l.name = name.value; dirtyL = true; draw(); });
+        const del = h("button", { class: "btn", "data-write": "", "data-testid": "landmark-delete" }, "Delete");
+        del.addEventListener("click", () => { lms = lms.filter((_, k) => k !== i); sel = -1; dirtyL = true; drawList(); draw(); });
+        return h("div", { class: "lm-row", "data-testid": "landmark-row" }, h("strong", {}, String(i + 1)), name,
+          h("span", { class: "muted small" }, `px ${l.pixel.map((v) => v.toFixed(0)).join(", ")}`), writer ? del : "");
+      }));
+    };
+    const setMode = (m: "landmarks" | "roi") => {
+      mode = m; sel = -1;
+      modeBox.querySelectorAll("button").forEach((b) => b.classList.toggle("active", b.dataset.value === m));
+      lmPanel.hidden = m !== "landmarks"; roiPanel.hidden = m !== "roi";
+      draw();
+    };
+    modeBox.append(...(["landmarks", "roi"] as const).map((m) => h("button", { class: "btn", "data-value": m, "data-testid": `mode-${m}`, onclick: () => setMode(m) }, m === "roi" ? "ROI" : "Landmarks")));
+
+    // Touch on the photo (writers): pick or move marks.
+    let drag: number | null = null;
+    svg.addEventListener("pointerdown", (e) => {
+      if (!writer) return;
+      const p = toPx(e), k = scale();
+      if (mode === "landmarks") {
+        sel = nearest(lms.map((l) => l.pixel), p, 28 / k);
+        if (sel >= 0) drag = e.pointerId;
+      } else {
+        sel = nearest(roi, p, 28 / k);
+        if (sel < 0) { const r = insertRoiPoint(roi, clampPx(p, W, H)); roi = r.points; sel = r.index; dirtyR = true; }
+        drag = e.pointerId;
+      }
+      if (drag !== null) svg.setPointerCapture(e.pointerId);
+      draw();
+    });
+    svg.addEventListener("pointermove", (e) => {
+      if (drag !== e.pointerId || sel < 0) return;
+      const p = clampPx(toPx(e), W, H);
+      if (mode === "landmarks") { lms[sel].pixel = p; dirtyL = true; } else { roi[sel] = p; dirtyR = true; }
+      draw();
+    });
+    const up = (e: PointerEvent) => { if (drag === e.pointerId) { drag = null; if (mode === "landmarks") drawList(); } };
+    svg.addEventListener("pointerup", up);
+    svg.addEventListener("pointercancel", up);
+    delR.addEventListener("click", () => { if (sel >= 0) { roi = roi.filter((_, k) => k !== sel); sel = -1; dirtyR = true; draw(); } });
+    clearR.addEventListener("click", () => { roi = []; sel = -1; dirtyR = true; draw(); });
+    saveL.addEventListener("click", async () => {
+      saveL.disabled = true;
+      try {
+        const r = await apiJson<{ revision: number }>("POST", `/api/cases/${id}/landmarks`,
+          { landmarks: lms.map((l) => ({ label: l.name, world_mm: l.world_mm, pixel: l.pixel })), photo_id: photo.id });
+        dirtyL = false;
+        showNotice(`Landmarks saved (revision ${r.revision}).`);
+        draw();
+      } catch (e) { showError(e); draw(); }
+    });
+    saveR.addEventListener("click", async () => {
+      saveR.disabled = true;
+      try {
+        const r = await apiJson<{ revision: number }>("POST", `/api/cases/${id}/roi`,
+          { points: roi, tension, type: "closed-cardinal-spline", photo_id: photo.id });
+        dirtyR = false;
+        showNotice(`ROI saved (revision ${r.revision}).`);
+        draw();
+      } catch (e) { showError(e); draw(); }
+    });
+    const ro = new ResizeObserver(() => draw());
+    ro.observe(svg as unknown as Element);
+    onLeave(() => ro.disconnect());
+    drawList();
+    setMode("landmarks");
+  }, missing);
+}
+
+/** The newest successful registration: the model rendered from its pose with the photo's camera,
+ *  laid over the photo at an adjustable opacity, with the run's figures. */
+function caseFused(id: number, body: HTMLElement, alive: Alive, got: (c: CaseRecord) => void, missing: (e: unknown) => void, onLeave: OnLeave): void {
+  body.append(h("p", { class: "muted" }, "Loading…"));
+  interface RegFull { id: number; status: string; nmi?: number; seconds?: number; evaluations?: number; photo_id?: number;
+                      final_pose?: { T_camera_from_world: number[][] }; initial_pose?: { T_camera_from_world: number[][] } }
+  Promise.all([apiJson<CaseRecord>("GET", `/api/cases/${id}`), apiJson<{ registrations: RegFull[] }>("GET", `/api/cases/${id}/registrations`)]).then(async ([c, rr]) => {
+    if (!alive()) return;
+    got(c);
+    const ok = rr.registrations.filter((r) => r.status === "succeeded" && r.final_pose?.T_camera_from_world).sort((a, b) => b.id - a.id);
+    if (!ok.length) { body.replaceChildren(h("p", { class: "muted", "data-testid": "no-result" }, "No successful registration yet. Start one in Contents; its result is shown here.")); return; }
+    const reg = ok[0];
+    const photo = (c.photos ?? []).find((p) => p.id === reg.photo_id) ?? [...(c.photos ?? [])].sort((a, b) => b.id - a.id)[0];
+    if (!photo?.intrinsics?.width) { body.replaceChildren(h("p", { class: "muted" }, "The registration's photo is missing.")); return; }
+    const K = photo.intrinsics as { width: number; height: number };
+    const k = Math.min(1, 1280 / K.width, 1024 / K.height);
+    const w = Math.round(K.width * k), hh = Math.round(K.height * k);
+    const urls: string[] = [];
+    onLeave(() => urls.forEach((u) => URL.revokeObjectURL(u)));
+    const photoImg = h("img", { class: "fused-photo", alt: "Photo", draggable: "false", "data-testid": "fused-photo" });
+    const modelImg = h("img", { class: "fused-model", alt: "Model from the registered pose", draggable: "false", "data-testid": "fused-model" });
+    const stage = h("div", { class: "photo-stage fused", "data-testid": "fused-stage" }, photoImg, modelImg);
+    const opacityOut = h("span", { class: "value" }, "50 %");
+    const opacity = h("input", { type: "range", min: 0, max: 100, step: 5, value: 50, class: "slider", "data-testid": "fused-opacity" });
+    const presetBox = h("div", { class: "choices" });
+    const info = h("p", { class: "muted", "data-testid": "fused-info" },
+      `Registration #${reg.id}: NMI ${reg.nmi?.toFixed(4) ?? "–"}, ${reg.seconds?.toFixed(1) ?? "–"} s, ${reg.evaluations ?? "–"} evaluations; photo ${photo.original_name}.`);
+    body.replaceChildren(h("div", { class: "case-layout" }, stage, h("aside", { class: "controls" },
+      h("h2", {}, "Model opacity ", opacityOut), opacity, h("h2", {}, "Model"), presetBox, info)));
+    const setOpacity = () => { modelImg.style.opacity = String(Number(opacity.value) / 100); opacityOut.textContent = `${opacity.value} %`; };
+    opacity.addEventListener("input", setOpacity);
+    setOpacity();
+    try {
+      const pb = await apiBlob(`/api/cases/${id}/photos/${photo.id}`);
+      const u = URL.createObjectURL(pb); urls.push(u); photoImg.src = u;
+    } catch (e) { showError(e); }
+    const renderModel = async (preset: string) => {
+      presetBox.querySelectorAll("button").forEach((b) => b.classList.toggle("active", b.dataset.value === preset));
+      try {
+        const req = { width: w, height: hh, preset, camera: photo.intrinsics as unknown, T_camera_from_world: reg.final_pose!.T_camera_from_world };
+        let r: RenderedImage;
+        try {
+          r = await apiRender(req);
+        } catch (e) {
+          // The daemon at commit ccf80fe reads `camera` as a case.json (`{camera: {...}}`) and
+          // refuses the intrinsics themselves with 'missing "camera"': ask again in that shape
+          // (either form works, whichever the daemon takes).
+          if (!(e instanceof ApiError && e.status === 400 && /missing "camera"/.test(e.message))) throw e;
+          r = await apiRender({ ...req, camera: { camera: photo.intrinsics } });
+        }
+        if (!alive()) return;
+        const u = URL.createObjectURL(r.blob); urls.push(u); modelImg.src = u;
+        modelImg.dataset.full = "true";
+        modelImg.dataset.preset = preset;
+      } catch (e) { showError(e); }
+    };
+    presetBox.append(...["cortex_t1", "surface_white"].map((p) => h("button", { class: "btn", "data-value": p, onclick: () => renderModel(p) }, p.replace(/_/g, " "))));
+    renderModel("cortex_t1");
   }, missing);
 }
 
@@ -549,7 +809,7 @@ function caseView(id: number, body: HTMLElement, aliveFn: Alive, got: (c: CaseRe
   showOrbit();
   const showBrain = () => { brainBtn.classList.toggle("active", v.brainOnly); brainBtn.textContent = v.brainOnly ? "Brain only: on" : "Brain only: off"; };
   brainBtn.addEventListener("click", () => {
-    if (!v.tf) { showError(new Error("Brain only applies to an edited transfer function; the presets choose it themselves.")); return; }
+    if (!v.tf) { showError(new UserMessage("Brain only applies to an edited transfer function; the presets choose it themselves.")); return; }
     v.brainOnly = !v.brainOnly;
     showBrain();
     sched.now({ ...v });
@@ -633,7 +893,7 @@ function jobsScreen(): void {
   }, showError);
 
   startBtn.addEventListener("click", async () => {
-    if (!folder.value) { showError(new Error("No phantom case folder to register yet; the daemon makes one at start.")); return; }
+    if (!folder.value) { showError(new UserMessage("No phantom case folder to register yet; the daemon makes one at start.")); return; }
     try {
       const j = await apiJson<Job>("POST", "/api/jobs", { kind: "register", params: { case: folder.value } });
       selected = j.id;

@@ -85,3 +85,28 @@ describe("api client with a login session", () => {
     }
   });
 });
+
+describe("uploads and downloads", () => {
+  it("sends a file's bytes as an octet stream and reads the JSON answer; a refusal names the file", async () => {
+    const { apiUpload, apiBlob } = await import("../src/api");
+    let seen: RequestInit | undefined;
+    const ok: FetchLike = async (_u, init) => { seen = init; return new Response('{"id":4}', { status: 201 }); };
+    const bytes = new Uint8Array([1, 2, 3]).buffer;
+    expect(await apiUpload<{ id: number }>("/api/cases/1/photos?name=p.png", bytes, ok)).toEqual({ id: 4 });
+    expect((seen?.headers as Record<string, string>)["Content-Type"]).toBe("application/octet-stream");
+    expect(seen?.body).toBe(bytes);
+    const bad: FetchLike = async () => new Response('{"error":{"code":"bad_request","message":"photo p.png: not a PNG (signature)"}}', { status: 400 });
+    const e: any = await apiUpload("/api/cases/1/photos?name=p.png", bytes, bad).catch((x: any) => x);
+    expect(e.message).toBe("photo p.png: not a PNG (signature)");
+    const img: FetchLike = async () => new Response(new Uint8Array([9, 8]), { status: 200, headers: { "Content-Type": "image/png" } });
+    expect((await apiBlob("/api/cases/1/photos/1", img)).size).toBe(2);
+  });
+});
+
+describe("messages", () => {
+  it("shows the UI's own checks as they are and anything else as something that went wrong", async () => {
+    const { UserMessage } = await import("../src/api");
+    expect(plainMessage(new UserMessage("Type a title for the new case first."))).toBe("Type a title for the new case first.");
+    expect(plainMessage(new Error("boom"))).toBe("Something went wrong: boom");
+  });
+});
