@@ -65,6 +65,17 @@ try {
   const pageErrors = [];
   page.on("pageerror", (e) => pageErrors.push(String(e)));
   const shot = (name, p = page) => p.screenshot({ path: path.join(artDir, `${name}.png`) });
+  // Touch targets (issue 7: at least 48 px): every visible control on the screen.
+  const targetsChecked = [];
+  const checkTargets = async (screen, p = page) => {
+    const small = await p.evaluate(() => [...document.querySelectorAll("button, a.btn, a.tab, a.row, input, select, canvas.tf-canvas")]
+      .filter((e) => e.offsetParent !== null)
+      .map((e) => ({ e, r: e.getBoundingClientRect() }))
+      .filter(({ r }) => r.height < 47.5 || r.width < 47.5)
+      .map(({ e, r }) => `${e.tagName.toLowerCase()}[${e.dataset.testid ?? e.textContent?.trim().slice(0, 20)}] ${r.width.toFixed(0)}x${r.height.toFixed(0)}`));
+    expect(small.length === 0, `touch targets on ${screen} are at least 48 px (${small.join("; ")})`);
+    targetsChecked.push(screen);
+  };
 
   // Cases screen, status bar live from the push channel.
   await page.goto(`${base}/`);
@@ -94,6 +105,7 @@ try {
 
   await page.getByTestId("new-case-title").fill("E2E phantom case");
   await shot("01-cases");
+  await checkTargets("cases");
   await page.getByTestId("create-case").tap();
   await page.waitForURL(/#\/case\/\d+$/, { timeout: 20000 });
   step(`case created: ${page.url()}`);
@@ -105,6 +117,7 @@ try {
                                    document.querySelector('[data-testid="render-image"]').naturalWidth > 100, null, { timeout: 30000 });
   const size1 = await img.getAttribute("data-size");
   await shot("02-case-view");
+  await checkTargets("case view");
   step(`rendered ${size1}`);
 
   // Preset and a drag: the head turns freely about the volume's centre (GET /api/render/volume),
@@ -219,6 +232,7 @@ try {
   await running.filter({ hasText: /NMI \d\.\d{4}/ }).waitFor({ timeout: 60000 });
   await page.waitForTimeout(2500); // a few plot points
   await shot("05-jobs-running");
+  await checkTargets("jobs");
   await running.getByTestId("cancel-job").tap();
   await page.locator('[data-testid="job-card"][data-state="cancelled"]').first().waitFor({ timeout: 30000 });
   await page.getByTestId("sb-jobs").filter({ hasText: "0 running" }).waitFor({ timeout: 15000 });
@@ -274,6 +288,37 @@ try {
     expect(re.test(held), `the imported case's contents match ${re} (${held})`);
   expect(await page.getByTestId("case-landmarks").locator("tbody tr").count() >= 4, "the landmark pairs are listed");
   await shot("10-case-contents");
+  await checkTargets("case contents");
+  // Export the case as a zip (a real download), and import it again: the same uid is refused (409) in words.
+  const [dl] = await Promise.all([page.waitForEvent("download", { timeout: 30000 }), page.getByTestId("case-export").tap()]);
+  const zipPath = path.join(tmp, "export.zip");
+  await dl.saveAs(zipPath);
+  const zip = fs.readFileSync(zipPath);
+  expect(zip.length > 1000 && zip[0] === 0x50 && zip[1] === 0x4b, `the export is a zip (${zip.length} bytes)`);
+  await page.getByRole("link", { name: "Cases" }).first().tap();
+  await page.getByTestId("import-zip-file").setInputFiles(zipPath);
+  await page.getByTestId("import-zip").tap();
+  const dup = page.getByTestId("error-banner").filter({ hasText: /already|exists|uid/i });
+  await dup.waitFor({ timeout: 30000 });
+  step(`export ${zip.length} bytes; importing it again: ${await dup.locator(".text").textContent()}`);
+  await dup.getByRole("button").tap();
+  // Sorting by title both ways.
+  await page.getByTestId("case-sort").selectOption("title_asc");
+  await page.waitForFunction(() => document.querySelector('[data-testid="case-row"] .row-title')?.textContent === "E2E phantom case", null, { timeout: 15000 });
+  await page.getByTestId("case-sort").selectOption("title_desc");
+  await page.waitForFunction(() => document.querySelector('[data-testid="case-row"] .row-title')?.textContent === "phantom_case_0000", null, { timeout: 15000 });
+  await page.getByTestId("case-sort").selectOption("updated_desc");
+  // The workflow state: back to "new" is allowed, a jump to "reviewed" is refused (409) in words.
+  await page.evaluate((id) => { location.hash = `#/case/${id}/contents`; }, importedId);
+  await page.getByTestId("case-state-select").selectOption("new");
+  await page.getByTestId("case-state-set").tap();
+  await page.getByTestId("case-state").filter({ hasText: /^new$/ }).waitFor({ timeout: 15000 });
+  await page.getByTestId("case-state-select").selectOption("reviewed");
+  await page.getByTestId("case-state-set").tap();
+  const jump = page.getByTestId("error-banner").filter({ hasText: /reviewed/ });
+  await jump.waitFor({ timeout: 15000 });
+  step(`state back to new; a jump: ${await jump.locator(".text").textContent()}`);
+  await jump.getByRole("button").tap();
   step(`imported case ${importedId}: ${held}`);
 
   await page.getByTestId("case-tab-photo").tap();
@@ -305,11 +350,14 @@ try {
   await page.getByTestId("save-roi").tap();
   await page.getByTestId("notice-banner").filter({ hasText: "ROI saved (revision 2)" }).waitFor({ timeout: 10000 });
   await shot("11-photo-marks");
+  await checkTargets("photo & marks");
   // Bad input: an ROI of two points is refused by the daemon, in its words; nothing stored.
   await page.getByTestId("roi-clear").tap();
-  const c1 = await toScreen(100, 100), c2 = await toScreen(300, 300);
+  const c1 = await toScreen(200, 120), c2 = await toScreen(450, 120);
   await page.touchscreen.tap(c1.x, c1.y);
+  await page.waitForFunction(() => Number(document.querySelector('[data-testid="photo-marks"]').dataset.roiPoints) === 1, null, { timeout: 5000 });
   await page.touchscreen.tap(c2.x, c2.y);
+  await page.waitForFunction(() => Number(document.querySelector('[data-testid="photo-marks"]').dataset.roiPoints) === 2, null, { timeout: 5000 });
   await page.getByTestId("save-roi").tap();
   const badRoi = page.getByTestId("error-banner").filter({ hasText: /roi/i });
   await badRoi.waitFor({ timeout: 10000 });
@@ -331,6 +379,7 @@ try {
                                    document.querySelector('[data-testid="fused-photo"]').naturalWidth > 100, null, { timeout: 30000 });
   step(`fused view: ${await page.getByTestId("fused-info").textContent()}`);
   await shot("12-fused");
+  await checkTargets("fused");
   await page.getByTestId("case-tab-audit").tap();
   await page.getByTestId("case-audit").waitFor({ timeout: 20000 });
   const auditKiosk = await page.getByTestId("case-audit").textContent();
@@ -355,6 +404,7 @@ try {
   await rp.getByTestId("login-submit").tap();
   await rp.getByTestId("login-error").filter({ hasText: "Wrong user name or password" }).waitFor({ timeout: 10000 });
   await shot("12-login-wrong-password", rp);
+  await checkTargets("login", rp);
   await rp.getByTestId("login-password").fill("review-pass-1");
   await rp.getByTestId("login-submit").tap();
   await rp.getByTestId("sb-role").filter({ hasText: "rita (reviewer, read-only)" }).waitFor({ timeout: 10000 });
@@ -439,6 +489,7 @@ try {
   step("daemon restarted: link lost and back, typed title kept");
   await stopDaemon(daemonB);
 
+  step(`touch targets >= 48 px on: ${targetsChecked.join(", ")}`);
   expect(pageErrors.length === 0, `no page errors (${pageErrors.join("; ")})`);
   step("PASS");
 } catch (e) {

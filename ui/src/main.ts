@@ -312,7 +312,7 @@ function casesScreen(): void {
   const load = async () => {
     try {
       const q = search.value.trim();
-      const r = await apiJson<{ cases: CaseSummary[] }>("GET", `/api/cases?limit=200${q ? `&text=${encodeURIComponent(q)}` : ""}`);
+      const r = await apiJson<{ cases: CaseSummary[] }>("GET", `/api/cases?limit=200&sort=${encodeURIComponent(sort.value)}${q ? `&text=${encodeURIComponent(q)}` : ""}`);
       list.replaceChildren(...(r.cases.length ? r.cases.map((c) =>
         h("a", { class: "row", href: `#/case/${c.id}`, "data-testid": "case-row" },
           h("span", { class: "row-title" }, c.title || "(untitled)"),
@@ -332,7 +332,13 @@ function casesScreen(): void {
       location.hash = `#/case/${c.id}`;
     } catch (e) { showError(e); }
   };
-  main.append(h("h1", {}, "Cases"), h("div", { class: "toolbar" }, search), list);
+  // Sorting (the API's sort keys); kept for this tab.
+  const sort = h("select", { class: "field", "data-testid": "case-sort", "aria-label": "Sort the cases" },
+    ...[["updated_desc", "Last changed first"], ["updated_asc", "Last changed last"], ["created_desc", "Newest first"], ["created_asc", "Oldest first"],
+        ["title_asc", "Title A–Z"], ["title_desc", "Title Z–A"]].map(([v, l]) => h("option", { value: v }, l)));
+  sort.value = sessionStorage.getItem("cortexfuse.sort") ?? "updated_desc";
+  sort.addEventListener("change", () => { sessionStorage.setItem("cortexfuse.sort", sort.value); load(); });
+  main.append(h("h1", {}, "Cases"), h("div", { class: "toolbar" }, search, sort), list);
   if (canWrite(session)) {
     // Import a case folder (the phantom generator's, under the state folder's cases/) into the store.
     const folder = h("select", { class: "field grow", "data-testid": "import-folder" });
@@ -351,7 +357,8 @@ function casesScreen(): void {
     }, showError);
     main.append(
       h("form", { class: "toolbar", onsubmit: create, "data-write": "" }, title, h("button", { class: "btn primary", type: "submit", "data-testid": "create-case" }, "Create case")),
-      h("div", { class: "toolbar", "data-write": "" }, folder, importBtn));
+      h("div", { class: "toolbar", "data-write": "" }, folder, importBtn),
+      zipImportForm());
   } else {
     main.append(h("p", { class: "muted", "data-testid": "read-only-note" }, "Read-only: you are logged in as a reviewer."));
   }
@@ -445,9 +452,59 @@ function caseContents(id: number, body: HTMLElement, alive: Alive, got: (c: Case
         h("span", { class: "muted" }, ready ? "Registers the case's volume with its photo." : "Needs a volume and a photo first.")));
       parts.push(h("h2", {}, "Add data"), uploadForms(id));
     }
+    // Export (everyone who may read) and the workflow state (writers: one step forward or back to any earlier one).
+    const exp = h("button", { class: "btn", "data-testid": "case-export" }, "Export zip");
+    exp.addEventListener("click", () => exportCase(id, exp));
+    const row = h("div", { class: "toolbar" }, exp);
+    if (canWrite(session)) {
+      const st = h("select", { class: "field", "data-testid": "case-state-select", "aria-label": "Workflow state" },
+        ...STATES.map((x) => h("option", { value: x }, x.replace(/_/g, " "))));
+      st.value = c.state;
+      const set = h("button", { class: "btn", "data-testid": "case-state-set", "data-write": "" }, "Set state");
+      set.addEventListener("click", async () => {
+        set.disabled = true;
+        try { await apiJson("POST", `/api/cases/${id}/state`, { state: st.value }); route(); } catch (e) { showError(e); set.disabled = false; }
+      });
+      row.append(h("span", { class: "muted" }, "Workflow"), st, set);
+    }
+    parts.unshift(row);
     body.replaceChildren(...parts);
   }, missing);
 }
+
+/** Import a case zip (written by Export, or a plain case folder zipped) into the store. */
+function zipImportForm(): HTMLElement {
+  const file = h("input", { type: "file", class: "field grow", accept: ".zip,application/zip", "data-testid": "import-zip-file" });
+  const btn = h("button", { class: "btn", type: "button", "data-testid": "import-zip" }, "Import zip");
+  btn.addEventListener("click", async () => {
+    const f = file.files?.[0];
+    if (!f) { showError(new UserMessage("Choose the case zip first (written by Export, or a case folder zipped).")); return; }
+    if (!/\.zip$/i.test(f.name)) { showError(new UserMessage(`${f.name}: not a .zip file. Choose the case zip written by Export.`)); return; }
+    btn.disabled = true;
+    try {
+      const c = await apiUpload<CaseSummary>(`/api/cases/import-zip?name=${encodeURIComponent(f.name)}`, f);
+      location.hash = `#/case/${c.id}/contents`;
+    } catch (e) { showError(e); } finally { btn.disabled = false; }
+  });
+  return h("div", { class: "toolbar", "data-write": "" }, file, btn);
+}
+
+/** Downloads the case as a zip (GET /api/cases/N/export, with the session's token). */
+async function exportCase(id: number, btn: HTMLButtonElement): Promise<void> {
+  btn.disabled = true;
+  try {
+    const blob = await apiBlob(`/api/cases/${id}/export`);
+    const url = URL.createObjectURL(blob);
+    const a = h("a", { href: url, download: `case_${id}.zip` });
+    document.body.append(a);
+    a.click();
+    a.remove();
+    setTimeout(() => URL.revokeObjectURL(url), 10000);
+    showNotice(`Case ${id} exported (${fmtBytes(blob.size)}).`);
+  } catch (e) { showError(e); } finally { btn.disabled = false; }
+}
+
+const STATES = ["new", "planned", "patient_registered", "photo_captured", "landmarks", "roi", "registered", "reviewed"];
 
 /** Upload a volume (NIfTI, NRRD, MetaImage; with its modality) or a photo (PNG, JPEG; its
  *  camera from the picture's size and a focal length) into the case; the daemon checks both. */
