@@ -30,7 +30,9 @@ const statusBar = h("header", { class: "statusbar", "data-testid": "statusbar" }
 const banners = h("div", { class: "banners", "aria-live": "polite" });
 const nav = h("nav", { class: "tabs" });
 const main = h("main", { class: "screen" });
-app.append(statusBar, banners, nav, main);
+// Passing notices float over the bottom right (they must not push the picture down).
+const toasts = h("div", { class: "toasts", "aria-live": "polite" });
+app.append(statusBar, banners, nav, main, toasts);
 
 // ---- error banners -----------------------------------------------------------------------
 function showError(e: unknown): void {
@@ -52,7 +54,8 @@ function showNotice(text: string): void {
   const banner = h("div", { class: "banner info", role: "status", "data-testid": "notice-banner" },
     h("span", { class: "text" }, text),
     h("button", { class: "btn small", onclick: () => banner.remove() }, "Dismiss"));
-  banners.append(banner);
+  toasts.append(banner);
+  while (toasts.children.length > 3) toasts.firstElementChild?.remove();
   setTimeout(() => banner.remove(), 10000);
 }
 
@@ -379,10 +382,13 @@ const CASE_TABS: [string, string][] = [["view", "3D view"], ["contents", "Conten
 /** The case's header (back, title, state) and its sub-screens; `onCase` gets the record, `onMissing`
  *  runs when it cannot be read (after the banner). */
 function caseScreen(id: number, sub: string): void {
-  const header = h("div", { class: "toolbar" }, h("a", { class: "btn", href: "#/cases" }, "‹ Cases"), h("h1", { class: "grow", "data-testid": "case-title" }, `Case ${id}`));
+  // One row: back, the title and its state, then the case's screens (keeps the picture tall at 1280x800).
+  const header = h("div", { class: "toolbar case-head" }, h("a", { class: "btn", href: "#/cases" }, "‹ Cases"),
+    h("h1", { class: "grow case-title", "data-testid": "case-title" }, `Case ${id}`));
   const subtabs = h("div", { class: "subtabs" }, ...CASE_TABS.map(([key, label]) =>
     h("a", { class: `btn${key === sub ? " active" : ""}`, href: key === "view" ? `#/case/${id}` : `#/case/${id}/${key}`, "data-testid": `case-tab-${key}` }, label)));
-  main.append(header, subtabs);
+  header.append(subtabs);
+  main.append(header);
   const body = h("div", { class: "case-body" });
   main.append(body);
   let alive = true;
@@ -395,7 +401,7 @@ function caseScreen(id: number, sub: string): void {
   };
   const got = (c: CaseRecord) => {
     header.querySelector("h1")!.textContent = c.title || `Case ${id}`;
-    header.append(h("span", { class: "badge", "data-testid": "case-state" }, c.state.replace(/_/g, " ")));
+    header.querySelector("h1")!.after(h("span", { class: "badge", "data-testid": "case-state" }, c.state.replace(/_/g, " ")));
   };
   if (sub === "contents") caseContents(id, body, () => alive, got, missing);
   else if (sub === "audit") caseAudit(id, body, () => alive, got, missing);
