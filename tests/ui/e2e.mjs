@@ -380,6 +380,29 @@ try {
   step(`fused view: ${await page.getByTestId("fused-info").textContent()}`);
   await shot("12-fused");
   await checkTargets("fused");
+  // A new landmark pair: picked on the model in the 3D view (a ray through the tap onto the
+  // case's brain mask), then its twin tapped on the photo; saved as revision 3.
+  await page.getByTestId("case-tab-view").tap();
+  await page.waitForFunction(() => document.querySelector('[data-testid="render-image"]')?.dataset.full === "true" &&
+                                   document.querySelector('[data-testid="render-stage"]')?.dataset.orbit === "free", null, { timeout: 30000 });
+  await page.getByTestId("pick-landmark").tap();
+  await page.getByTestId("pick-note").filter({ hasText: "Tap the model" }).waitFor({ timeout: 30000 });
+  await page.waitForFunction(() => document.querySelectorAll('[data-testid="pick-dot-lm"]').length === 4, null, { timeout: 10000 });
+  const stBox = await page.getByTestId("render-stage").boundingBox();
+  await page.touchscreen.tap(Math.round(stBox.x + stBox.width / 2), Math.round(stBox.y + stBox.height / 2));
+  const picked = page.getByTestId("notice-banner").filter({ hasText: "Model point picked" });
+  await picked.waitFor({ timeout: 10000 });
+  step(`pick: ${await picked.locator(".text").textContent()}`);
+  await shot("12b-pick-landmark");
+  await page.getByTestId("case-tab-photo").tap();
+  await page.waitForFunction(() => Number(document.querySelector('[data-testid="photo-marks"]')?.dataset.landmarks) === 4 &&
+                                   document.querySelector('[data-testid="photo-image"]')?.naturalWidth > 0, null, { timeout: 20000 });
+  const tw = await toScreen(150, 100);
+  await page.touchscreen.tap(tw.x, tw.y);
+  await page.waitForFunction(() => Number(document.querySelector('[data-testid="photo-marks"]').dataset.landmarks) === 5, null, { timeout: 5000 });
+  await page.getByTestId("save-landmarks").tap();
+  await page.getByTestId("notice-banner").filter({ hasText: "Landmarks saved (revision 3)" }).waitFor({ timeout: 10000 });
+  step("new landmark pair: model point picked by touch, twin tapped on the photo, saved (revision 3, 5 pairs)");
   await page.getByTestId("case-tab-audit").tap();
   await page.getByTestId("case-audit").waitFor({ timeout: 20000 });
   const auditKiosk = await page.getByTestId("case-audit").textContent();

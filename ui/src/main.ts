@@ -2,7 +2,7 @@
 // volume, the case's contents and audit trail, jobs.
 import "./style.css";
 import { ApiError, UserMessage, apiBlob, apiJson, apiRender, apiUpload, auth, plainMessage, type RenderedImage } from "./api";
-import { cardinalPath, clampPx, defaultCamera, imageKind, insertRoiPoint, nearest, type Px } from "./photo_marks";
+import { cardinalPath, clampPx, defaultCamera, imageKind, insertRoiPoint, nearest, projectPoint, type Px } from "./photo_marks";
 import { PushChannel, type PushState } from "./push";
 import { fitFocalPx, RenderScheduler, renderSizes } from "./render_scheduler";
 import { drawNmiPlot, type NmiPoint } from "./nmiplot";
@@ -10,6 +10,7 @@ import { h, table } from "./dom";
 import { LinkMonitor, restartNote } from "./link";
 import { dragOrbit, NAMED_VIEWS, namedViewOf, orbitPose, zoomOrbit, type Orbit, type Vec3 } from "./orbit";
 import { TfEditor } from "./tf_editor";
+import { centreLps, gunzipIfNeeded, parseNifti, pickSurface, pixelRay, type Volume as NiftiVolume } from "./nifti";
 import type { TfJson } from "./tf_model";
 import { canWrite, KIOSK, loadSession, roleLabel, saveSession, sessionFromLogin, wsUrl, type Session } from "./session";
 import { auditRows, fmtBytes, fmtTime, holdings, patientLine, registrationRows, type AuditEntry, type CaseRecord } from "./case_detail";
@@ -374,7 +375,9 @@ function casesScreen(): void {
 const timeline: { what: string; t: number; size: string }[] = [];
 (window as unknown as { cfRenderTimeline: typeof timeline }).cfRenderTimeline = timeline;
 interface View { preset: string; opacity: number; orbit: Orbit; tf: TfJson | null; brainOnly: boolean }
-interface VolumeGeometry { center_lps_mm: Vec3; radius_mm: number; brain?: { center_lps_mm: Vec3; radius_mm: number } | null }
+interface VolumeGeometry { center_lps_mm: Vec3; radius_mm: number; dims?: number[]; spacing_mm?: number[]; brain?: { center_lps_mm: Vec3; radius_mm: number } | null }
+// Model points picked in the 3D view, waiting for their twin on the photo (per case, this tab).
+const pendingModelPoints = new Map<number, Vec3[]>();
 const BRAIN_PRESETS = new Set(["cortex_t1", "surface_white"]);
 
 const CASE_TABS: [string, string][] = [["view", "3D view"], ["contents", "Contents"], ["photo", "Photo & marks"], ["fused", "Fused"], ["audit", "Audit trail"]];
@@ -597,7 +600,7 @@ function casePhoto(id: number, body: HTMLElement, alive: Alive, got: (c: CaseRec
     const clearR = h("button", { class: "btn", "data-testid": "roi-clear", "data-write": "" }, "Clear ROI");
     const modeBox = h("div", { class: "choices" });
     const lmPanel = h("div", {}, h("h2", {}, "Landmark pairs"), list, writer ? h("div", { class: "toolbar" }, saveL) : "",
-      h("p", { class: "muted" }, writer ? "Drag a numbered mark to move the photo twin of that landmark; its point on the model stays. Picking new points on the model needs a surface pick from the daemon (not there yet)." : "Read-only."));
+      h("p", { class: "muted" }, writer ? "Drag a numbered mark to move the photo twin of that landmark; its point on the model stays. A new pair: Pick landmark in the 3D view, tap the model, then tap its twin here." : "Read-only."));
     const roiPanel = h("div", {}, h("h2", {}, "ROI (closed spline)"),
       writer ? h("div", { class: "choices" }, delR, clearR, saveR) : "",
       h("p", { class: "muted" }, writer ? "Tap on the photo to add a control point (it goes into the nearest edge), drag one to move it, tap it and Delete point to remove it." : "Read-only."));
@@ -631,7 +634,9 @@ function casePhoto(id: number, body: HTMLElement, alive: Alive, got: (c: CaseRec
       saveL.disabled = !dirtyL;
       saveR.disabled = !dirtyR;
       delR.disabled = mode !== "roi" || sel < 0;
-      info.textContent = `${photo.original_name}, ${W}x${H} px · ${lms.length} landmark pairs · ROI ${roi.length} points${dirtyL || dirtyR ? " · unsaved changes" : ""}`;
+      const waiting = (pendingModelPoints.get(id) ?? []).length;
+      info.textContent = `${photo.original_name}, ${W}x${H} px · ${lms.length} landmark pairs · ROI ${roi.length} points${dirtyL || dirtyR ? " · unsaved changes" : ""}` +
+        (waiting ? ` · ${waiting} model point${waiting > 1 ? "s" : ""} picked in the 3D view: tap the twin on the photo (Landmarks)` : "");
     };
     const drawList = () => {
       list.replaceChildren(...lms.map((l, i) => {
@@ -659,6 +664,18 @@ function casePhoto(id: number, body: HTMLElement, alive: Alive, got: (c: CaseRec
       const p = toPx(e), k = scale();
       if (mode === "landmarks") {
         sel = nearest(lms.map((l) => l.pixel), p, 28 / k);
+        const waiting = pendingModelPoints.get(id) ?? [];
+        if (sel < 0 && waiting.length) {
+          // The twin of the model point picked in the 3D view: a new pair.
+          const used = new Set(lms.map((l) => l.name));
+          let n = lms.length + 1;
+          while (used.has(`L${n}`)) n++;
+          lms.push({ name: `L${n}`, world_mm: waiting[0], pixel: clampPx(p, W, H) });
+          pendingModelPoints.set(id, waiting.slice(1));
+          sel = lms.length - 1;
+          dirtyL = true;
+          drawList();
+        }
         if (sel >= 0) drag = e.pointerId;
       } else {
         sel = nearest(roi, p, 28 / k);
@@ -788,6 +805,7 @@ function caseView(id: number, body: HTMLElement, aliveFn: Alive, got: (c: CaseRe
     h("strong", {}, "The picture could not be made."), renderErrText, retry);
   const stage = h("div", { class: "render-stage", "data-testid": "render-stage" }, img, renderErr);
   const info = h("div", { class: "muted", "data-testid": "render-info" }, "Rendering…");
+  let shownView: { view: View; size: { width: number; height: number } } | null = null;
   const presets = h("div", { class: "choices", "data-testid": "presets" });
   const views = h("div", { class: "choices two" });
   const opacityOut = h("span", { class: "value" }, "100 %");
@@ -802,7 +820,15 @@ function caseView(id: number, body: HTMLElement, aliveFn: Alive, got: (c: CaseRe
     timeline.push({ what: "change", t: performance.now(), size: "" });
     if (final) sched.now({ ...v }); else sched.interactive({ ...v });
   });
+  // Landmark picking on the model (writers, a case with a brain mask on the rendered grid).
+  const pickBtn = h("button", { class: "btn", "data-testid": "pick-landmark", hidden: true }, "Pick landmark");
+  const pickNote = h("p", { class: "muted", "data-testid": "pick-note", hidden: true });
+  const pickMarks = h("div", { class: "pick-marks", "data-testid": "pick-marks" });
+  let picking = false;
+  let mask: NiftiVolume | null = null;
+  let caseRec: CaseRecord | null = null;
   const side = h("aside", { class: "controls" },
+    h("div", { class: "choices" }, pickBtn), pickNote,
     h("h2", {}, "Preset"), presets,
     h("h2", {}, "Transfer function", tfTitle), editor.el, h("div", { class: "choices" }, brainBtn),
     h("h2", {}, "Opacity ", opacityOut), opacity,
@@ -842,6 +868,7 @@ function caseView(id: number, body: HTMLElement, aliveFn: Alive, got: (c: CaseRe
       img.dataset.size = `${size.width}x${size.height}`;
       img.dataset.full = String(full);
       img.dataset.tf = _view.tf ? "custom" : _view.preset;
+      shownView = { view: _view, size };
       info.textContent = `${ri.width}x${ri.height} ${full ? "" : "preview "}in ${ri.renderMs.toFixed(0)} ms (${ri.renderer})`;
       timeline.push({ what: full ? "full" : "preview", t: performance.now(), size: `${size.width}x${size.height}` });
     },
@@ -901,8 +928,82 @@ function caseView(id: number, body: HTMLElement, aliveFn: Alive, got: (c: CaseRe
   apiJson<CaseRecord>("GET", `/api/cases/${id}`).then((c) => {
     if (!aliveFn()) return;
     got(c);
+    caseRec = c;
+    pickBtn.hidden = !canWrite(session) || !(c.volumes ?? []).some((x) => x.modality === "mask");
     sched.now({ ...v });
   }, missing);
+  stage.append(pickMarks);
+
+  // The camera of the picture shown: its pose and intrinsics (as the daemon made it).
+  const shownCamera = () => {
+    if (!shownView || !geo) return null;
+    const { view, size } = shownView;
+    const f = fitFocalPx(size.width, size.height, 450, 95);
+    return { T: orbitPose(view.orbit, target(view)), K: { fx: f, fy: f, cx: (size.width - 1) / 2, cy: (size.height - 1) / 2 }, size };
+  };
+  // Screen <-> picture pixel (the image is shown contained in the stage).
+  const imgBox = (size: { width: number; height: number }) => {
+    const r = stage.getBoundingClientRect();
+    const k = Math.min(r.width / size.width, r.height / size.height);
+    return { k, x0: r.left + (r.width - size.width * k) / 2, y0: r.top + (r.height - size.height * k) / 2, r };
+  };
+  const drawPickMarks = () => {
+    pickMarks.replaceChildren();
+    const cam = shownCamera();
+    if (!picking || !cam) return;
+    const b = imgBox(cam.size);
+    const pts: [string, number[], string][] = [
+      ...(caseRec?.landmarks?.points ?? []).map((p, i) => [String(i + 1), p.world_mm, "lm"] as [string, number[], string]),
+      ...(pendingModelPoints.get(id) ?? []).map((p) => ["+", p, "pending"] as [string, number[], string]),
+    ];
+    for (const [label, w, cls] of pts) {
+      const px = projectPoint(cam.T, cam.K, w);
+      if (!px) continue;
+      const dot = h("span", { class: `pick-dot ${cls}`, "data-testid": `pick-dot-${cls}` }, label);
+      dot.style.left = `${b.x0 - b.r.left + (px[0] + 0.5) * b.k}px`;
+      dot.style.top = `${b.y0 - b.r.top + (px[1] + 0.5) * b.k}px`;
+      pickMarks.append(dot);
+    }
+  };
+  new ResizeObserver(() => drawPickMarks()).observe(stage);
+  img.addEventListener("load", () => drawPickMarks());
+  pickBtn.addEventListener("click", async () => {
+    if (picking) { picking = false; pickBtn.classList.remove("active"); pickNote.hidden = true; drawPickMarks(); return; }
+    try {
+      if (!geo) throw new UserMessage("The volume's geometry is not known yet (the MRI is still loading); try again in a moment.");
+      if (!mask) {
+        const mv = [...(caseRec?.volumes ?? [])].filter((x) => x.modality === "mask").sort((a, b) => b.id - a.id)[0];
+        if (!mv) throw new UserMessage("This case has no brain mask to pick on; upload one (modality mask) in Contents.");
+        pickNote.hidden = false;
+        pickNote.textContent = `Loading the brain mask (${fmtBytes(mv.size_bytes)})…`;
+        const m = parseNifti(await gunzipIfNeeded(await (await apiBlob(`/api/cases/${id}/volumes/${mv.id}`)).arrayBuffer()), mv.original_name);
+        // The picture is the daemon's MRI: picking on this case's mask is right only on the same grid.
+        const c = centreLps(m);
+        const same = geo.dims?.every((d, i) => d === m.dims[i]) !== false &&
+                     Math.hypot(c[0] - geo.center_lps_mm[0], c[1] - geo.center_lps_mm[1], c[2] - geo.center_lps_mm[2]) < 1;
+        if (!same) throw new UserMessage(`The 3D view shows the daemon's MRI, not this case's volume (${mv.original_name} has another grid); a point picked here would be in the wrong place.`);
+        mask = m;
+      }
+      picking = true;
+      pickBtn.classList.add("active");
+      pickNote.hidden = false;
+      pickNote.textContent = "Tap the model where the landmark is; then tap its twin on the photo (Photo & marks).";
+      drawPickMarks();
+    } catch (e) { pickNote.hidden = true; showError(e); }
+  });
+  const pickAt = (x: number, y: number) => {
+    const cam = shownCamera();
+    if (!cam || !mask) return;
+    const b = imgBox(cam.size);
+    const u = (x - b.x0) / b.k - 0.5, w = (y - b.y0) / b.k - 0.5;
+    const { origin, dir } = pixelRay(cam.T, cam.K, u, w);
+    const hit = pickSurface(mask, origin, dir, v.orbit.distanceMm + 400);
+    if (!hit) { showError(new UserMessage("That tap missed the brain: tap on the model itself.")); return; }
+    pendingModelPoints.set(id, [...(pendingModelPoints.get(id) ?? []), hit]);
+    stage.dataset.picked = String(pendingModelPoints.get(id)!.length);
+    showNotice(`Model point picked at (${hit.map((q) => q.toFixed(1)).join(", ")}) mm. Now tap its twin on the photo (Photo & marks).`);
+    drawPickMarks();
+  };
 
   // Touch: one finger orbits about the volume's centre (0.4 degrees a pixel), two fingers pinch
   // to zoom (the distance); a wheel zooms too.
@@ -914,13 +1015,17 @@ function caseView(id: number, body: HTMLElement, aliveFn: Alive, got: (c: CaseRe
     gesture = a ? { orbit: { ...v.orbit }, x: a.x, y: a.y, spread: spread() } : null;
   };
   const changed = () => { showOrbit(); timeline.push({ what: "change", t: performance.now(), size: "" }); sched.interactive({ ...v }); };
+  let tap: { id: number; x: number; y: number; moved: boolean } | null = null;
   stage.addEventListener("pointerdown", (e) => {
     if (e.target instanceof HTMLButtonElement) return;
+    tap = fingers.size === 0 ? { id: e.pointerId, x: e.clientX, y: e.clientY, moved: false } : null;
     fingers.set(e.pointerId, { x: e.clientX, y: e.clientY });
     stage.setPointerCapture(e.pointerId);
     begin();
   });
   stage.addEventListener("pointermove", (e) => {
+    if (tap && e.pointerId === tap.id && Math.hypot(e.clientX - tap.x, e.clientY - tap.y) > 8) tap.moved = true;
+    if (picking && tap && !tap.moved && fingers.size === 1) return; // a tap in pick mode does not turn the head
     if (!fingers.has(e.pointerId) || !gesture) return;
     fingers.set(e.pointerId, { x: e.clientX, y: e.clientY });
     if (fingers.size >= 2 && gesture.spread > 10) v.orbit = zoomOrbit(gesture.orbit, spread() / gesture.spread);
@@ -930,7 +1035,12 @@ function caseView(id: number, body: HTMLElement, aliveFn: Alive, got: (c: CaseRe
     } else return;
     changed();
   });
-  const end = (e: PointerEvent) => { fingers.delete(e.pointerId); begin(); };
+  const end = (e: PointerEvent) => {
+    if (picking && tap && e.pointerId === tap.id && !tap.moved && e.type === "pointerup") pickAt(e.clientX, e.clientY);
+    if (tap && e.pointerId === tap.id) tap = null;
+    fingers.delete(e.pointerId);
+    begin();
+  };
   stage.addEventListener("pointerup", end);
   stage.addEventListener("pointercancel", end);
   stage.addEventListener("wheel", (e) => { e.preventDefault(); v.orbit = zoomOrbit(v.orbit, Math.exp(-e.deltaY / 500)); changed(); }, { passive: false });
