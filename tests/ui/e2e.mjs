@@ -272,6 +272,10 @@ try {
   await page.getByTestId("upload-photo").tap();
   await page.getByTestId("case-holdings").filter({ hasText: "1 photo" }).waitFor({ timeout: 20000 });
   step("photo uploaded into the new case");
+  // A photo from the cart's (simulated) camera.
+  await page.getByTestId("capture-photo").tap();
+  await page.getByTestId("case-holdings").filter({ hasText: "2 photos" }).waitFor({ timeout: 60000 });
+  step("photo captured from the camera into the new case");
 
   // ---- A case of the store: import the phantom folder, see what it holds, move a landmark's
   // photo twin and add an ROI point by touch (new revisions; an ROI of 2 points refused),

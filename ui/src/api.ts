@@ -98,8 +98,8 @@ export async function apiUpload<T>(path: string, bytes: Blob | ArrayBuffer, fetc
 }
 
 /** GET of a file (a photo, a result) as a Blob, with the session's token (an <img src> could not send it). */
-export async function apiBlob(path: string, fetchImpl: FetchLike = fetch): Promise<Blob> {
-  return (await send(fetchImpl, "GET", path)).blob();
+export async function apiBlob(path: string, fetchImpl: FetchLike = fetch, method = "GET"): Promise<Blob> {
+  return (await send(fetchImpl, method, path)).blob();
 }
 
 export interface RenderedImage {

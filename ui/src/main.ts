@@ -524,6 +524,7 @@ function uploadForms(id: number): HTMLElement {
   const photoFile = h("input", { type: "file", class: "field grow", accept: "image/png,image/jpeg,.png,.jpg,.jpeg", "data-testid": "upload-photo-file" });
   const focal = h("input", { type: "number", class: "field narrow", min: 10, max: 100000, step: 1, value: 1400, "data-testid": "upload-photo-focal", title: "focal length (px)" });
   const photoBtn = h("button", { class: "btn", type: "button", "data-testid": "upload-photo" }, "Upload photo");
+  const captureBtn = h("button", { class: "btn", type: "button", "data-testid": "capture-photo" }, "Capture from camera");
   const status = h("p", { class: "muted", "data-testid": "upload-status" }, "");
   const busy = async (btn: HTMLButtonElement, what: string, f: () => Promise<void>) => {
     btn.disabled = true;
@@ -550,9 +551,23 @@ function uploadForms(id: number): HTMLElement {
       await apiUpload(`/api/cases/${id}/photos?name=${encodeURIComponent(f.name)}&camera=${encodeURIComponent(JSON.stringify(cam))}`, f);
     });
   });
+  // The cart's camera (POST /api/camera/capture answers the picture); the camera has no
+  // calibration over the API, so its intrinsics are the picture's size and the focal length typed.
+  captureBtn.addEventListener("click", () => {
+    busy(captureBtn, "Taking a photo (the first one can take a few seconds)", async () => {
+      const blob = await apiBlob("/api/camera/capture", fetch, "POST");
+      let bmp: ImageBitmap;
+      try { bmp = await createImageBitmap(blob); } catch { throw new UserMessage("The camera's picture cannot be decoded; try again, or pick a file."); }
+      const cam = defaultCamera(bmp.width, bmp.height, Number(focal.value) || 1400);
+      bmp.close();
+      const name = `capture_${new Date().toISOString().replace(/[-:]/g, "").replace(/\..*$/, "")}.${blob.type === "image/png" ? "png" : "jpg"}`;
+      await apiUpload(`/api/cases/${id}/photos?name=${encodeURIComponent(name)}&camera=${encodeURIComponent(JSON.stringify(cam))}`, blob);
+    });
+  });
   return h("div", { class: "uploads", "data-write": "" },
     h("div", { class: "toolbar" }, volFile, volMod, volBtn),
-    h("div", { class: "toolbar" }, photoFile, h("label", { class: "muted" }, "focal px"), focal, photoBtn), status);
+    h("div", { class: "toolbar" }, photoFile, h("label", { class: "muted" }, "focal px"), focal, photoBtn),
+    h("div", { class: "toolbar" }, captureBtn), status);
 }
 
 type OnLeave = (f: () => void) => void;
