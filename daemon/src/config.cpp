@@ -40,6 +40,8 @@ std::vector<OptionSpec> make_options() {
          "HOST:PORT the HTTP server and the WebSocket listen on (port 0: any free port). 0.0.0.0:8080 opens it to the network (review workstations; they must log in)"},
         {"http.threads", T::integer, 2, 256, {}, 16, "Connection threads; each open WebSocket holds one"},
         {"http.max_body_bytes", T::integer, 1024, 1 << 30, {}, 1 << 20, "Largest request body accepted (413 above it)"},
+        {"http.nice", T::integer, 0, 19, {}, 0,
+         "Nice value of the connection threads (and the WebSocket writers they start); above 0 the tracker's driver thread wins the CPU first (no measurable gain with the simulator over a pty: docs/performance.md)"},
         {"http.request_timeout_ms", T::integer, 100, 600000, {}, 30000, "Socket read/write timeout per request"},
         {"http.ui_dir", T::string, 0, 0, {}, CF_UI_DIR, "Folder of the built web UI, served at / (a plain page says so when it has no index.html)"},
         {"http.remote_requires_login", T::boolean, 0, 0, {}, true,
@@ -56,6 +58,8 @@ std::vector<OptionSpec> make_options() {
         {"data.t1", T::string, 0, 0, {}, data + "/t1_head_mne_ecog.nii.gz", "The MRI rendered by /api/render and used for the phantom cases"},
         {"data.brain_mask", T::string, 0, 0, {}, data + "/brainmask_mne_ecog_binary.nii.gz", "Its brain mask (brain-only presets and phantom cases)"},
         {"tracker.enabled", T::boolean, 0, 0, {}, true, "Run the tracker module"},
+        {"tracker.nice", T::integer, -20, 19, {}, -10,
+         "Nice value the tracker's driver and simulator threads start with (below 0 needs CAP_SYS_NICE; without it they keep the daemon's and a warning is logged)"},
         {"tracker.source", T::string, 0, 0, {"sim", "serial", "tcp"}, "sim",
          "sim: the NDI Polaris simulator in-process, reached through the real driver over a pty or TCP; serial: a Polaris on tracker.serial_port; tcp: a Vega at tracker.tcp"},
         {"tracker.serial_port", T::string, 0, 0, {}, "", "Serial device for source serial, e.g. /dev/serial/by-id/usb-NDI_..."},
@@ -78,6 +82,9 @@ std::vector<OptionSpec> make_options() {
         {"jobs.phantom_seed", T::integer, 0, 2147483647, {}, 1, "Seed of those phantom cases"},
         {"jobs.stop_timeout_ms", T::integer, 0, 600000, {}, 5000, "On SIGTERM: how long running jobs get to finish after being cancelled"},
         {"jobs.progress_hz", T::number, 0.5, 100, {}, 10, "Most progress events per second per job"},
+        {"jobs.threads", T::integer, 0, 1024, {}, 0,
+         "Threads a job's parallel work may use (its own TBB arena; llvmpipe's threads too unless LP_NUM_THREADS is set); 0: hardware cores - 1, at least 1"},
+        {"jobs.nice", T::integer, 0, 19, {}, 10, "Nice value of the job worker threads and the threads they start (the tracker and HTTP threads stay at the daemon's)"},
         {"jobs.kept", T::integer, 1, 100000, {}, 200, "Finished jobs kept in memory for GET /api/jobs"},
         {"watchdog.check_ms", T::integer, 50, 60000, {}, 1000, "How often the watchdog thread checks the modules"},
         {"watchdog.tracker_stall_ms", T::integer, 100, 600000, {}, 5000,
@@ -206,6 +213,7 @@ DaemonConfig parse_config(const nlohmann::json& j, const std::string& source) {
     c.http_threads = v["http.threads"].get<int>();
     c.max_body_bytes = v["http.max_body_bytes"].get<std::int64_t>();
     c.request_timeout_ms = v["http.request_timeout_ms"].get<int>();
+    c.http_nice = v["http.nice"].get<int>();
     c.ui_dir = v["http.ui_dir"].get<std::string>();
     c.remote_requires_login = v["http.remote_requires_login"].get<bool>();
     c.push_default_tracker_hz = v["push.default_tracker_hz"].get<double>();
@@ -217,6 +225,7 @@ DaemonConfig parse_config(const nlohmann::json& j, const std::string& source) {
     c.t1_path = v["data.t1"].get<std::string>();
     c.brain_mask_path = v["data.brain_mask"].get<std::string>();
     c.tracker_enabled = v["tracker.enabled"].get<bool>();
+    c.tracker_nice = v["tracker.nice"].get<int>();
     c.tracker_source = v["tracker.source"].get<std::string>();
     c.tracker_serial_port = v["tracker.serial_port"].get<std::string>();
     c.tracker_tcp = v["tracker.tcp"].get<std::string>();
@@ -236,6 +245,8 @@ DaemonConfig parse_config(const nlohmann::json& j, const std::string& source) {
     c.phantom_seed = v["jobs.phantom_seed"].get<std::int64_t>();
     c.stop_timeout_ms = v["jobs.stop_timeout_ms"].get<int>();
     c.job_progress_hz = v["jobs.progress_hz"].get<double>();
+    c.job_threads = v["jobs.threads"].get<int>();
+    c.job_nice = v["jobs.nice"].get<int>();
     c.jobs_kept = v["jobs.kept"].get<int>();
     c.watchdog_check_ms = v["watchdog.check_ms"].get<int>();
     c.tracker_stall_ms = v["watchdog.tracker_stall_ms"].get<int>();
@@ -281,6 +292,7 @@ nlohmann::json to_json(const DaemonConfig& c) {
               {"threads", c.http_threads},
               {"max_body_bytes", c.max_body_bytes},
               {"request_timeout_ms", c.request_timeout_ms},
+              {"nice", c.http_nice},
               {"ui_dir", c.ui_dir},
               {"remote_requires_login", c.remote_requires_login}}},
             {"push", {{"default_tracker_hz", c.push_default_tracker_hz}, {"queue_frames", c.push_queue_frames}}},
@@ -290,6 +302,7 @@ nlohmann::json to_json(const DaemonConfig& c) {
             {"data", {{"t1", c.t1_path}, {"brain_mask", c.brain_mask_path}}},
             {"tracker",
              {{"enabled", c.tracker_enabled},
+              {"nice", c.tracker_nice},
               {"source", c.tracker_source},
               {"serial_port", c.tracker_serial_port},
               {"tcp", c.tracker_tcp},
@@ -307,6 +320,8 @@ nlohmann::json to_json(const DaemonConfig& c) {
               {"phantom_seed", c.phantom_seed},
               {"stop_timeout_ms", c.stop_timeout_ms},
               {"progress_hz", c.job_progress_hz},
+              {"threads", c.job_threads},
+              {"nice", c.job_nice},
               {"kept", c.jobs_kept}}},
             {"watchdog", {{"check_ms", c.watchdog_check_ms}, {"tracker_stall_ms", c.tracker_stall_ms}}}};
 }

@@ -251,10 +251,17 @@ void Daemon::start() {
         throw std::runtime_error("store.dir " + d.store_dir.string() + ": " + e.what());
     }
 
+    // llvmpipe (Mesa's software GL, the renderer on a cart without a GPU) starts one rasterizer
+    // thread per core for each context, outside any TBB arena: cap them like the jobs' arena
+    // (unless LP_NUM_THREADS is set), so a registration rendering with GL cannot take every
+    // core from the tracker's driver thread. Set before any thread of ours or any GL context
+    // exists; a GPU driver ignores it.
+    if (d.cfg.renderer != "cpu" && !std::getenv("LP_NUM_THREADS"))
+        ::setenv("LP_NUM_THREADS", std::to_string(JobQueue::resolve_threads(d.cfg.job_threads)).c_str(), 0);
     d.tracker = std::make_unique<TrackerModule>(d.cfg);
     d.render = std::make_unique<RenderModule>(d.cfg);
     d.camera = std::make_unique<CameraModule>(d.cfg);
-    d.jobs = std::make_unique<JobQueue>(JobQueue::Options{d.cfg.job_progress_hz, d.cfg.jobs_kept});
+    d.jobs = std::make_unique<JobQueue>(JobQueue::Options{d.cfg.job_progress_hz, d.cfg.jobs_kept, d.cfg.job_threads, d.cfg.job_nice});
     d.http = std::make_unique<HttpServer>(d.cfg, d.registry);
     d.register_job_kinds();
     d.register_endpoints();

@@ -1,5 +1,11 @@
 #include "http_server.hpp"
 
+#include <sys/resource.h>
+#include <sys/syscall.h>
+#include <unistd.h>
+
+#include <cerrno>
+
 #include <civetweb.h>
 #include <sodium.h>
 
@@ -118,6 +124,22 @@ HttpServer::HttpServer(const DaemonConfig& c, const EndpointRegistry& registry) 
 
 HttpServer::~HttpServer() { stop(); }
 
+namespace {
+/// civetweb calls this on each of its new threads. Connection workers (type 1) get nice
+/// `http.nice`, so under a saturated CPU the tracker's driver and the push thread (nice 0) are
+/// scheduled before request handling (WebSocket writer threads, started from a worker, inherit it).
+void* init_thread_cb(const mg_context* ctx, int thread_type) {
+    const auto* server = static_cast<const HttpServer*>(mg_get_user_data(ctx));
+    if (thread_type == 1 && server && server->worker_nice() > 0) {
+        const id_t tid = id_t(::syscall(SYS_gettid));
+        errno = 0;
+        const int current = ::getpriority(PRIO_PROCESS, tid);
+        if (errno == 0 && current < server->worker_nice()) ::setpriority(PRIO_PROCESS, tid, server->worker_nice());
+    }
+    return nullptr;
+}
+}  // namespace
+
 void HttpServer::start() {
     static const unsigned features = mg_init_library(MG_FEATURES_WEBSOCKET);
     (void)features;
@@ -133,6 +155,7 @@ void HttpServer::start() {
     mg_callbacks cb;
     std::memset(&cb, 0, sizeof cb);
     cb.log_message = log_message_cb;
+    cb.init_thread = init_thread_cb;
     mg_init_data init{&cb, this, options};
     char err_text[256] = {0};
     unsigned err_code = 0;

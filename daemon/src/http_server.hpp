@@ -43,6 +43,8 @@ public:
     /// Stops accepting, closes the WebSockets, joins all threads.
     void stop();
     int port() const { return port_; }
+    /// Nice value of civetweb's connection threads (http.nice).
+    int worker_nice() const { return cfg_.http_nice; }
     /// Resolves a bearer token (Authorization: Bearer T, or ?token=T on /api/ws) into the
     /// client's role and user; returns false for an unknown or expired token. Set before start().
     using Authenticator = std::function<bool(const std::string& token, Client& client)>;

@@ -1,10 +1,19 @@
 #include "cortexfuse/daemon/jobs.hpp"
 
+#include <sys/resource.h>
+#include <sys/syscall.h>
+#include <tbb/task_arena.h>
+#include <unistd.h>
+
 #include <algorithm>
+#include <cerrno>
 #include <ctime>
+#include <exception>
+#include <thread>
 
 #include "cortexfuse/core/error.hpp"
 #include "cortexfuse/daemon/endpoints.hpp"
+#include "cortexfuse/daemon/log.hpp"
 #include "cortexfuse/drivers/tracker/session.hpp"
 
 namespace cf::daemon {
@@ -15,6 +24,7 @@ struct JobQueue::Worker {
     std::string kind;
     std::deque<std::uint64_t> queue;
     std::thread thread;
+    std::unique_ptr<tbb::task_arena> arena;  // made on the worker thread; its jobs run inside it
     std::uint64_t running = 0;
     std::uint64_t done = 0;
     bool finished = false;  // the loop has returned
@@ -296,8 +306,23 @@ void JobQueue::trim_finished() {
     }
 }
 
+int JobQueue::resolve_threads(int threads) {
+    if (threads > 0) return threads;
+    const int hw = int(std::thread::hardware_concurrency());
+    return std::max(1, hw - 1);
+}
+
 void JobQueue::worker_loop(Worker& w) {
     const JobKind& kind = kinds_.at(w.kind);
+    // Lower this thread's priority (Linux: nice is per thread; threads it starts inherit it).
+    // Raising it back needs CAP_SYS_NICE, so this is one-way, and only for the job threads.
+    const id_t tid = id_t(::syscall(SYS_gettid));
+    errno = 0;
+    const int current = ::getpriority(PRIO_PROCESS, tid);
+    if (opt_.nice > 0 && errno == 0 && current < opt_.nice && ::setpriority(PRIO_PROCESS, tid, opt_.nice) != 0)
+        log(LogLevel::warning, "jobs", "worker '" + w.kind + "': cannot set nice " + std::to_string(opt_.nice));
+    // One slot, taken by this thread; the other threads - 1 come from TBB's pool.
+    w.arena = std::make_unique<tbb::task_arena>(resolve_threads(opt_.threads), 1);
     for (;;) {
         std::uint64_t id = 0;
         nlohmann::json params;
@@ -327,7 +352,17 @@ void JobQueue::worker_loop(Worker& w) {
         nlohmann::json result;
         std::string error;
         try {
-            result = kind.run(params, ctx);
+            // Parallel loops inside the job (tbb::parallel_for without an arena of its own)
+            // run in this arena, at most `threads` at once.
+            std::exception_ptr thrown;
+            w.arena->execute([&] {
+                try {
+                    result = kind.run(params, ctx);
+                } catch (...) {
+                    thrown = std::current_exception();
+                }
+            });
+            if (thrown) std::rethrow_exception(thrown);
             if (ctx.cancelled()) end = JobInfo::State::cancelled;
         } catch (const cf::Cancelled&) {
             end = JobInfo::State::cancelled;

@@ -1,5 +1,13 @@
 #include "tracker_module.hpp"
 
+#include <sys/resource.h>
+#include <sys/syscall.h>
+#include <unistd.h>
+
+#include <cerrno>
+#include <cstring>
+
+#include "cortexfuse/daemon/log.hpp"
 #include "cortexfuse/drivers/tracker/transport.hpp"
 
 namespace cf::daemon {
@@ -39,8 +47,44 @@ TrackerModule::TrackerModule(const DaemonConfig& c) : cfg_(c) {}
 
 TrackerModule::~TrackerModule() { stop(); }
 
+namespace {
+/// Runs `f` with this thread's nice value set to `nice`, so the threads `f` starts inherit it
+/// (Linux: nice is per thread and copied by clone), then restores it (raising it again is
+/// always allowed). Lowering it below the current value needs CAP_SYS_NICE: without it the
+/// threads keep the daemon's priority and `why_not` says so.
+template <class F>
+void with_thread_nice(int nice, F&& f, std::string* why_not) {
+    const id_t tid = id_t(::syscall(SYS_gettid));
+    errno = 0;
+    const int before = ::getpriority(PRIO_PROCESS, tid);
+    const bool read_ok = errno == 0;
+    bool changed = false;
+    if (read_ok && nice != before) {
+        if (::setpriority(PRIO_PROCESS, tid, nice) == 0) changed = true;
+        else if (why_not) *why_not = std::string("cannot set nice ") + std::to_string(nice) + ": " + std::strerror(errno) + " (needs CAP_SYS_NICE)";
+    }
+    try {
+        f();
+    } catch (...) {
+        if (changed) ::setpriority(PRIO_PROCESS, tid, before);
+        throw;
+    }
+    if (changed) ::setpriority(PRIO_PROCESS, tid, before);
+}
+}  // namespace
+
 void TrackerModule::start() {
     if (!cfg_.tracker_enabled) return;
+    // The driver's thread (and the simulator's) must be scheduled within the device's reply
+    // deadline even when registrations and HTTP clients saturate the CPU: start them at
+    // tracker.nice (default -10).
+    std::string why_not;
+    with_thread_nice(cfg_.tracker_nice, [&] { start_threads(); }, &why_not);
+    nice_ = why_not.empty() ? cfg_.tracker_nice : 0;
+    if (!why_not.empty()) log(LogLevel::warning, "tracker", "tracker.nice: " + why_not + "; the driver thread runs at the daemon's priority");
+}
+
+void TrackerModule::start_threads() {
     SessionConfig sc;
     sc.baud = cfg_.tracker_baud;
     for (const auto& r : cfg_.tracker_roms) sc.tools.push_back(load_tool_definition(r));
@@ -88,7 +132,21 @@ void TrackerModule::stop() {
     if (sim_) sim_->stop();
 }
 
-TrackerStatus TrackerModule::status() const { return session_ ? session_->status() : TrackerStatus{}; }
+TrackerStatus TrackerModule::status() const {
+    if (!session_) return TrackerStatus{};
+    // Readers (GET /api/status from every client, thousands a second under load) share one
+    // snapshot per kStatusMaxAgeNs: TrackerSession::status() takes the session's mutex, which
+    // the driver thread needs for every frame, and sorts its latency window under it; read per
+    // request, it kept the driver waiting behind the HTTP threads (a lock convoy).
+    std::lock_guard lk(cache_mu_);
+    const std::int64_t now = steady_ns();
+    if (!cache_ns_ || now - cache_ns_ >= kStatusMaxAgeNs) {
+        cache_ = session_->status();
+        if (sim_) cache_sim_ = {{"rate_hz", cfg_.tracker_sim_rate_hz}, {"replies", sim_->replies_sent()}, {"faults", sim_->total_faults()}};
+        cache_ns_ = now;
+    }
+    return cache_;
+}
 
 nlohmann::json TrackerModule::status_json() const {
     if (!cfg_.tracker_enabled) return {{"enabled", false}, {"state", "disabled"}};
@@ -102,6 +160,7 @@ nlohmann::json TrackerModule::status_json() const {
                      {"api_revision", st.api_revision},
                      {"reply_mode", st.reply_mode},
                      {"baud", st.baud},
+                     {"thread_nice", nice_},
                      {"frame_rate_hz", st.frame_rate_hz},
                      {"latency_p50_us", st.latency_p50_us},
                      {"latency_p99_us", st.latency_p99_us},
@@ -120,7 +179,10 @@ nlohmann::json TrackerModule::status_json() const {
                        {"reconnects", st.reconnects},
                        {"resets", st.resets}}}};
     if (st.last_frame_steady_ns) j["last_frame_age_ms"] = (steady_ns() - st.last_frame_steady_ns) / 1e6;
-    if (sim_) j["simulator"] = {{"rate_hz", cfg_.tracker_sim_rate_hz}, {"replies", sim_->replies_sent()}, {"faults", sim_->total_faults()}};
+    if (sim_) {
+        std::lock_guard lk(cache_mu_);
+        j["simulator"] = cache_sim_;
+    }
     return j;
 }
 

@@ -7,6 +7,7 @@
 // queues the frame for the push thread). status_json() and latest_json() from any thread.
 #include <functional>
 #include <memory>
+#include <mutex>
 #include <nlohmann/json.hpp>
 #include <string>
 
@@ -34,15 +35,23 @@ public:
     /// For the watchdog: false when the session should stream and has not published a frame
     /// for `stall_ms` while in state streaming.
     bool healthy(int stall_ms) const;
-    /// The session's status (stopped when disabled).
+    /// The session's status (stopped when disabled), at most kStatusMaxAgeNs old: one snapshot
+    /// is shared by all readers so they do not contend with the driver thread for its mutex.
     cf::tracker::TrackerStatus status() const;
+    static constexpr std::int64_t kStatusMaxAgeNs = 100'000'000;
 
 private:
+    void start_threads();
     DaemonConfig cfg_;
+    int nice_ = 0;  // the nice value the driver's thread got
     std::function<void(const cf::tracker::TrackerFrame&)> sink_;
     std::unique_ptr<cf::sim::TrackerSimulator> sim_;
     std::unique_ptr<cf::tracker::TrackerSession> session_;
     std::string source_desc_;
+    mutable std::mutex cache_mu_;  // guards the three below
+    mutable cf::tracker::TrackerStatus cache_;
+    mutable nlohmann::json cache_sim_;
+    mutable std::int64_t cache_ns_ = 0;
 };
 
 }  // namespace cf::daemon

@@ -38,6 +38,7 @@ struct DaemonConfig {
     int http_threads = 16;
     std::int64_t max_body_bytes = 1 << 20;
     int request_timeout_ms = 30000;
+    int http_nice = 0;                       ///< nice value of the connection threads
     std::string ui_dir;                      ///< static files served at /
     bool remote_requires_login = true;
     double push_default_tracker_hz = 30;
@@ -52,6 +53,7 @@ struct DaemonConfig {
     std::string t1_path, brain_mask_path;
     // tracker
     bool tracker_enabled = true;
+    int tracker_nice = -10;                  ///< nice value of the driver's (and simulator's) threads
     std::string tracker_source = "sim";      ///< sim | serial | tcp
     std::string tracker_serial_port, tracker_tcp;
     std::string tracker_sim_link = "pty";    ///< pty | tcp
@@ -73,6 +75,8 @@ struct DaemonConfig {
     int stop_timeout_ms = 5000;
     double job_progress_hz = 10;
     int jobs_kept = 200;
+    int job_threads = 0;  ///< a job's TBB arena (and llvmpipe) threads; 0: cores - 1, at least 1
+    int job_nice = 10;    ///< nice value of the job worker threads
     // watchdog
     int watchdog_check_ms = 1000;
     int tracker_stall_ms = 5000;

@@ -84,7 +84,17 @@ public:
     struct Options {
         double progress_hz = 10;
         int kept = 200;  ///< finished jobs kept
+        /// Threads a job's parallel work may use: each kind's worker runs its job inside its
+        /// own tbb::task_arena of this concurrency, so TBB loops in the engine (the CPU ray
+        /// caster, the phantom generator) never take every core from the tracker's driver
+        /// thread and the HTTP threads. 0: hardware cores - 1, at least 1.
+        int threads = 0;
+        /// Nice value of the worker threads (and the threads they start, e.g. llvmpipe's for a
+        /// job's GL context), 0..19: the tracker's and HTTP's threads win the CPU first.
+        int nice = 10;
     };
+    /// The arena concurrency `threads` resolves to (0: hardware cores - 1, at least 1).
+    static int resolve_threads(int threads);
     explicit JobQueue(Options o);
     ~JobQueue();
     JobQueue(const JobQueue&) = delete;
