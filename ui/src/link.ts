@@ -41,3 +41,30 @@ export function restartNote(prevStartedUtc: string | null, startedUtc: string | 
   const t = startedUtc.replace("T", " ").replace(/\.\d+Z$|Z$/, "");
   return `The daemon restarted (at ${t} UTC): jobs that were running before have stopped; start them again from Jobs if needed.`;
 }
+
+/** What the screen says about the tracker: a standing line from the moment it stops streaming
+ *  (after it had streamed) until it streams again, then a notice. */
+export class TrackerMonitor {
+  private streamed = false;
+  private lostAtMs: number | null = null;
+
+  constructor(private readonly nowMs: () => number = () => Date.now()) {}
+
+  update(state: string | undefined, lastError = ""): LinkView {
+    if (state === "streaming") {
+      const back = this.lostAtMs !== null;
+      this.lostAtMs = null;
+      this.streamed = true;
+      return { banner: null, notice: back ? "The tracker is streaming again." : null };
+    }
+    if (!this.streamed || !state || state === "disabled") return { banner: null, notice: null };
+    if (this.lostAtMs === null) this.lostAtMs = this.nowMs();
+    const secs = Math.max(0, Math.round((this.nowMs() - this.lostAtMs) / 1000));
+    return {
+      banner: `The tracker stopped streaming ${secs} s ago (now ${state.replace(/_/g, " ")}${lastError ? `: ${lastError}` : ""}). ` +
+              "Tools are not tracked meanwhile; a registration that is running goes on (it uses the photo, not the tracker). " +
+              "Check the tracker's cable and power; it reconnects by itself.",
+      notice: null,
+    };
+  }
+}

@@ -7,7 +7,7 @@ import { PushChannel, type PushState } from "./push";
 import { fitFocalPx, RenderScheduler, renderSizes } from "./render_scheduler";
 import { drawNmiPlot, type NmiPoint } from "./nmiplot";
 import { h, table } from "./dom";
-import { LinkMonitor, restartNote } from "./link";
+import { LinkMonitor, restartNote, TrackerMonitor } from "./link";
 import { dragOrbit, NAMED_VIEWS, namedViewOf, orbitPose, zoomOrbit, type Orbit, type Vec3 } from "./orbit";
 import { TfEditor } from "./tf_editor";
 import { centreLps, gunzipIfNeeded, parseNifti, pickSurface, pixelRay, type Volume as NiftiVolume } from "./nifti";
@@ -63,6 +63,10 @@ function showNotice(text: string): void {
 // The live link: a standing line while it is lost (not dismissable: it goes when the link is back).
 const linkBanner = h("div", { class: "banner warn", role: "alert", "data-testid": "link-banner", hidden: true }, h("span", { class: "text" }));
 banners.prepend(linkBanner);
+// The tracker: a standing line while it has stopped streaming (issue 7: a tracker that drops out).
+const trackerBanner = h("div", { class: "banner warn", role: "alert", "data-testid": "tracker-banner", hidden: true }, h("span", { class: "text" }));
+linkBanner.after(trackerBanner);
+const trackerMonitor = new TrackerMonitor();
 const linkMonitor = new LinkMonitor();
 let daemonStartedUtc: string | null = null;
 
@@ -159,6 +163,10 @@ interface StatusSummary {
 }
 function applyStatus(s: StatusSummary): void {
   const t = s.tracker ?? {};
+  const tv = trackerMonitor.update(t.state, (t as { last_error?: string }).last_error ?? "");
+  trackerBanner.hidden = tv.banner === null;
+  trackerBanner.querySelector(".text")!.textContent = tv.banner ?? "";
+  if (tv.notice) showNotice(tv.notice);
   const hz = typeof t.frame_rate_hz === "number" ? ` ${t.frame_rate_hz.toFixed(0)} Hz` : "";
   setPill(sb.tracker, `Tracker: ${t.state ?? "unknown"}${hz}`, t.state === "streaming" ? "ok" : t.state ? "warn" : "bad");
   const r = s.renderer ?? {};

@@ -31,3 +31,20 @@ describe("link monitor", () => {
     expect(restartNote("2026-11-22T10:00:00.000Z", "2026-11-22T10:05:01.250Z")).toMatch(/restarted \(at 2026-11-22 10:05:01 UTC\)/);
   });
 });
+
+import { TrackerMonitor } from "../src/link";
+describe("tracker monitor", () => {
+  it("is quiet until the tracker has streamed, then says when it stops and when it is back", () => {
+    let t = 0;
+    const m = new TrackerMonitor(() => t);
+    expect(m.update("connecting")).toEqual({ banner: null, notice: null }); // starting up: no alarm
+    expect(m.update("streaming")).toEqual({ banner: null, notice: null });
+    t = 1000;
+    expect(m.update("recovering", "tcp 127.0.0.1:9: connection refused").banner)
+      .toMatch(/stopped streaming 0 s ago \(now recovering: tcp 127.0.0.1:9: connection refused\).*registration that is running goes on/);
+    t = 6000;
+    expect(m.update("connecting").banner).toMatch(/stopped streaming 5 s ago \(now connecting\)/);
+    expect(m.update("streaming")).toEqual({ banner: null, notice: "The tracker is streaming again." });
+    expect(m.update("disabled")).toEqual({ banner: null, notice: null });
+  });
+});
