@@ -48,6 +48,7 @@ uniform float u_term;
 uniform float u_cov;
 uniform bool u_shading;
 uniform bool u_directional;                 // distant light from u_light_world, else a headlight
+uniform bool u_surface_only;                // layer 0: only its first surface crossing, opaque (RenderOptions::surface_only)
 uniform vec3 u_light_world;
 uniform bool u_has_mesh;
 
@@ -159,6 +160,7 @@ void main() {
                 for (int l = 0; l < NLAYERS; ++l) {
                     if (lt1[l] <= lt0[l] || t < lt0[l] || t > lt1[l]) continue;
                     const float s = vol(l, o[l] + t * d[l]);
+                    if (l == 0 && u_surface_only && !(s >= u_iso)) continue;
                     if (texelFetch(u_lut, ivec2(int(s + 0.5), l), 0).a * u_weight[l] > 0.0) found = true;
                 }
                 if (found) break;
@@ -191,6 +193,7 @@ void main() {
                     const float s = vol(l, p);
                     const vec4 e = texelFetch(u_lut, ivec2(int(s + 0.5), l), 0);
                     float a = e.a * u_weight[l];
+                    if (l == 0 && u_surface_only && !(s >= u_iso)) a = 0.0;
                     if (a <= 0.0) continue;
                     if (l == 0 && !refined && u_iso >= 0.0 && s >= u_iso) { need_refine = true; break; }
                     if (l == 0 && have_ref) p = o[0] + t_ref * d[0];
@@ -211,7 +214,7 @@ void main() {
                         if (grad_op) a *= gradient_factor(l, gn * u_grad_scale[l]);
                         if (u_shading) shade = u_ambient + u_diffuse * (gn > 1e-6 ? abs(dot(gw, u_directional ? u_light_world : dir_world)) / gn : 0.0);
                     }
-                    const float a_step = a >= 1.0 ? 1.0 : 1.0 - pow(1.0 - a, step);
+                    const float a_step = (l == 0 && u_surface_only) || a >= 1.0 ? 1.0 : 1.0 - pow(1.0 - a, step);
                     c_sum += a_step * e.rgb * shade;
                     a_sum += a_step;
                     transmit *= 1.0 - a_step;

@@ -304,6 +304,8 @@ private:
         const float inv_dir[3] = {1.f / dir_index[0], 1.f / dir_index[1], 1.f / dir_index[2]};
         const float term = float(opt.early_termination_alpha);
         const float cov = float(opt.coverage_alpha);
+        // (Without a surface level, no opacity reaching 0.5, the first visible sample is shown.)
+        const bool surface_only = opt.surface_only;
         if (t1 > t0) {
             // Samples on a fixed lattice t = n * step so that moving the camera slightly does
             // not make the sampling jump around (a registration loop moves it every frame).
@@ -339,6 +341,8 @@ private:
                 const int li = int(s + 0.5f);
                 const auto& e = baked_.rgba[size_t(li)];
                 float a = e[3];
+                // Surface only: nothing before the first crossing of the surface level counts.
+                if (a > 0.f && surface_only && !(s >= iso_q_)) a = 0.f;
                 if (a > 0.f) {
                     float x = x0, y = y0, z = z0, t_at = t;
                     if (!refined && iso_q_ >= 0.f && s >= iso_q_) {
@@ -378,7 +382,9 @@ private:
                         }
                     }
                     // Opacity per mm -> per step (table for the unmodulated case).
-                    const float a_step = grad_op ? (a >= 1.f ? 1.f : 1.f - std::pow(1.f - a, step)) : alpha_step_[size_t(li)];
+                    const float a_step = surface_only ? 1.f
+                                         : grad_op    ? (a >= 1.f ? 1.f : 1.f - std::pow(1.f - a, step))
+                                                      : alpha_step_[size_t(li)];
                     const float wgt = (1.f - alpha) * a_step;
                     r += wgt * e[0] * shade;
                     g += wgt * e[1] * shade;

@@ -95,11 +95,13 @@ void RegistrationParams::validate(const std::string& ctx) const {
     if (!(light_max_offset >= 0 && light_max_offset <= 2)) bad("light_max_offset must be 0..2");
     if (light_grid < 1 || light_grid > 15) bad("light_grid must be 1..15");
     if (light_rounds < 1 || light_rounds > 5) bad("light_rounds must be 1..5");
+    if (light_width_px != 0 && (light_width_px < 32 || light_width_px > 4000)) bad("light_width_px must be 0 or 32..4000");
+    if (search_keep < 0) bad("search_keep must be >= 0");
     if (binning != "hard" && binning != "linear") bad("binning must be \"hard\" or \"linear\"");
     if (starts.empty()) bad("at least one start");
     if (search_stages.empty() && final_stages.empty()) bad("at least one stage");
     if (keep_best < 1) bad("keep_best must be >= 1");
-    for (const auto* list : {&search_stages, &final_stages})
+    for (const auto* list : {&search_stages, &final_stages, &refine_stages})
         for (const auto& s : *list) {
             if (!(s.fwhm_mm >= 0 && s.fwhm_mm <= 50)) bad("stage " + s.name + ": fwhm_mm must be 0..50");
             if (!(s.step_mm > 0 && s.step_mm <= 50) || !(s.step_deg > 0 && s.step_deg <= 45)) bad("stage " + s.name + ": steps out of range");
@@ -145,6 +147,7 @@ json to_json(const RegistrationParams& p) {
     j["landmark_prior_tolerance_px"] = p.landmark_prior_tolerance_px;
     j["landmark_prior_expected"] = p.landmark_prior_expected;
     j["sample_distance_mm"] = p.sample_distance_mm;
+    j["surface_only"] = p.surface_only;
     j["roi_margin_fraction"] = p.roi_margin_fraction;
     j["binning"] = p.binning;
     j["robust_range"] = p.robust_range;
@@ -152,13 +155,17 @@ json to_json(const RegistrationParams& p) {
     j["light_max_offset"] = p.light_max_offset;
     j["light_grid"] = p.light_grid;
     j["light_rounds"] = p.light_rounds;
+    j["light_width_px"] = p.light_width_px;
     j["depth_weight"] = p.depth_weight;
     j["starts"] = p.starts;
+    j["search_keep"] = p.search_keep;
     j["keep_best"] = p.keep_best;
     j["search_stages"] = json::array();
     for (const auto& s : p.search_stages) j["search_stages"].push_back(stage_json(s));
     j["final_stages"] = json::array();
     for (const auto& s : p.final_stages) j["final_stages"].push_back(stage_json(s));
+    j["refine_stages"] = json::array();
+    for (const auto& s : p.refine_stages) j["refine_stages"].push_back(stage_json(s));
     return j;
 }
 
@@ -177,6 +184,7 @@ RegistrationParams registration_params_from_json(const json& j, const std::strin
         p.landmark_prior_tolerance_px = j.value("landmark_prior_tolerance_px", p.landmark_prior_tolerance_px);
         p.landmark_prior_expected = j.value("landmark_prior_expected", p.landmark_prior_expected);
         p.sample_distance_mm = j.value("sample_distance_mm", p.sample_distance_mm);
+        p.surface_only = j.value("surface_only", p.surface_only);
         p.roi_margin_fraction = j.value("roi_margin_fraction", p.roi_margin_fraction);
         p.binning = j.value("binning", p.binning);
         p.robust_range = j.value("robust_range", p.robust_range);
@@ -184,6 +192,8 @@ RegistrationParams registration_params_from_json(const json& j, const std::strin
         p.light_max_offset = j.value("light_max_offset", p.light_max_offset);
         p.light_grid = j.value("light_grid", p.light_grid);
         p.light_rounds = j.value("light_rounds", p.light_rounds);
+        p.light_width_px = j.value("light_width_px", p.light_width_px);
+        p.search_keep = j.value("search_keep", p.search_keep);
         p.depth_weight = j.value("depth_weight", p.depth_weight);
         if (j.contains("starts")) p.starts = j.at("starts").get<std::vector<PoseParams>>();
         p.keep_best = j.value("keep_best", p.keep_best);
@@ -194,6 +204,10 @@ RegistrationParams registration_params_from_json(const json& j, const std::strin
         if (j.contains("final_stages")) {
             p.final_stages.clear();
             for (const auto& s : j.at("final_stages")) p.final_stages.push_back(stage_from(s));
+        }
+        if (j.contains("refine_stages")) {
+            p.refine_stages.clear();
+            for (const auto& s : j.at("refine_stages")) p.refine_stages.push_back(stage_from(s));
         }
     } catch (const json::exception& e) {
         throw InputError(ctx, std::string("malformed registration parameters: ") + e.what());
@@ -357,6 +371,7 @@ public:
     Scorer(const PhotoInput& in, const RegistrationParams& p, Renderer& r)
         : in_(in), p_(p), renderer_(r), sim_(p.bins), metric_(metric_from_name(p.metric)) {
         ropt_.sample_distance_mm = p.sample_distance_mm;
+        ropt_.surface_only = p.surface_only;
         sim_.set_linear_binning(p.binning == "linear");
         ropt_.want_rgb = false;
         ropt_.want_depth = true;
@@ -631,8 +646,14 @@ RegistrationResult Registration::run(const PhotoInput& in, const Progress* progr
     for (const Pose& A : alternatives) starts.push_back(params_between(T0, A, pivot_cam));
 
     int total_budget = 0;
-    for (const auto& s : params_.search_stages) total_budget += s.max_evaluations * int(starts.size());
+    const int screened = params_.search_keep > 0 ? std::min(params_.search_keep, int(starts.size())) : int(starts.size());
+    for (size_t i = 0; i < params_.search_stages.size(); ++i)
+        total_budget += params_.search_stages[i].max_evaluations * (i == 0 ? int(starts.size()) : screened);
     for (const auto& s : params_.final_stages) total_budget += s.max_evaluations * params_.keep_best;
+    if (params_.estimate_light)
+        for (int round = 1; round < params_.light_rounds; ++round)
+            for (const auto& s : params_.refine_stages.empty() ? params_.final_stages : params_.refine_stages)
+                total_budget += s.max_evaluations;
     int evals_done = 0;
     double best_sim_overall = -1e300;
 
@@ -699,17 +720,34 @@ RegistrationResult Registration::run(const PhotoInput& in, const Progress* progr
         double cost;
     };
     std::vector<Candidate> candidates;
+    auto by_cost = [](const Candidate& a, const Candidate& b) { return a.cost < b.cost; };
+    std::vector<int> start_of;  // candidate -> start index, for the stage reports
     for (size_t s = 0; s < starts.size(); ++s) {
         PoseParams x = starts[s];
         double cost = 0, best_sim = 0;
-        if (params_.search_stages.empty()) {
-            candidates.push_back({x, 0});
-            continue;
-        }
-        for (const auto& st : params_.search_stages) std::tie(x, cost) = run_stage(st, int(s), x, best_sim);
+        if (!params_.search_stages.empty()) std::tie(x, cost) = run_stage(params_.search_stages.front(), int(s), x, best_sim);
         candidates.push_back({x, cost});
+        start_of.push_back(int(s));
     }
-    std::sort(candidates.begin(), candidates.end(), [](auto& a, auto& b) { return a.cost < b.cost; });
+    if (params_.search_stages.size() > 1) {
+        if (params_.search_keep > 0 && size_t(params_.search_keep) < candidates.size()) {
+            std::vector<int> order(candidates.size());
+            for (size_t i = 0; i < order.size(); ++i) order[i] = int(i);
+            std::stable_sort(order.begin(), order.end(), [&](int a, int b) { return by_cost(candidates[size_t(a)], candidates[size_t(b)]); });
+            order.resize(size_t(params_.search_keep));
+            std::vector<Candidate> kept;
+            std::vector<int> kept_start;
+            for (int i : order) kept.push_back(candidates[size_t(i)]), kept_start.push_back(start_of[size_t(i)]);
+            candidates = std::move(kept);
+            start_of = std::move(kept_start);
+        }
+        for (size_t c = 0; c < candidates.size(); ++c) {
+            double best_sim = 0;
+            for (size_t i = 1; i < params_.search_stages.size(); ++i)
+                std::tie(candidates[c].x, candidates[c].cost) = run_stage(params_.search_stages[i], start_of[c], candidates[c].x, best_sim);
+        }
+    }
+    std::stable_sort(candidates.begin(), candidates.end(), by_cost);
     candidates.resize(std::min<size_t>(candidates.size(), size_t(params_.keep_best)));
 
     // Final search and re-optimisation of the best few.
@@ -718,7 +756,8 @@ RegistrationResult Registration::run(const PhotoInput& in, const Progress* progr
     // The light: a grid over its direction at pose x, scored at the first final stage's level.
     auto estimate_light = [&](const PoseParams& x, int candidate) {
         const auto t0 = Clock::now();
-        const StageParams& st = params_.final_stages.front();
+        StageParams st = params_.final_stages.front();
+        if (params_.light_width_px > 0) st.render_width_px = params_.light_width_px;
         const Pose T = apply_params(T0, pivot_cam, x);
         const int stage_index = int(res.stages.size());
         int renders = 0;
@@ -762,7 +801,8 @@ RegistrationResult Registration::run(const PhotoInput& in, const Progress* progr
             for (size_t c = 0; c < candidates.size(); ++c) {
                 PoseParams x = candidates[c].x;
                 double cost = 0, s = 0;
-                for (const auto& st : params_.final_stages) std::tie(x, cost) = run_stage(st, int(c), x, s);
+                const auto& stages = round > 0 && !params_.refine_stages.empty() ? params_.refine_stages : params_.final_stages;
+                for (const auto& st : stages) std::tie(x, cost) = run_stage(st, int(c), x, s);
                 if (cost < best.cost) {
                     best = {x, cost};
                     best_sim = s;
@@ -777,7 +817,10 @@ RegistrationResult Registration::run(const PhotoInput& in, const Progress* progr
     res.light_direction_camera = scorer.light_direction();
     // Report the similarity at the final pose at the last stage's level.
     {
-        const StageParams& last = !params_.final_stages.empty() ? params_.final_stages.back() : params_.search_stages.back();
+        const bool refined = params_.estimate_light && params_.light_rounds > 1 && !params_.refine_stages.empty();
+        const StageParams& last = params_.final_stages.empty() ? params_.search_stages.back()
+                                  : refined                   ? params_.refine_stages.back()
+                                                              : params_.final_stages.back();
         double s = 0;
         evaluate(best.x, last, s);
         res.similarity = s;

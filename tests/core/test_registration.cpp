@@ -3,6 +3,7 @@
 #include <gtest/gtest.h>
 
 #include <filesystem>
+#include <map>
 
 #include "cortexfuse/core/case.hpp"
 #include "cortexfuse/core/error.hpp"
@@ -109,6 +110,49 @@ TEST(Registration, ParametersRoundTripAndRejectNonsense) {
     EXPECT_THROW(registration_params_from_json(bad, "params"), InputError);
     bad = to_json(p);
     bad["photo_channel"] = "ultraviolet";
+    EXPECT_THROW(registration_params_from_json(bad, "params"), InputError);
+}
+
+TEST(Registration, ScreensEveryStartThenSearchesOnlyTheKeptOnesAndRefinesTheWinner) {
+    const Fixture& f = fixture();
+    RegistrationParams p = small_params();
+    p.starts.resize(3);
+    p.search_stages = {{"screen", 4, 2, 2, 64, 8, 0.1, 0.1}, {"search", 4, 2, 2, 96, 8, 0.1, 0.1}};
+    p.search_keep = 1;
+    p.keep_best = 2;
+    p.final_stages = {{"final", 2, 1, 1, 128, 8, 0.05, 0.05}};
+    p.refine_stages = {{"refine", 2, 0.5, 0.5, 160, 8, 0.05, 0.05}};
+    p.estimate_light = true;
+    p.light_rounds = 2;
+    p.light_grid = 2;
+    p.light_width_px = 64;
+    Registration reg(f.c.volume, f.c.mask, p);
+    const RegistrationResult r = reg.run(f.c.photo);
+    std::map<std::string, int> count;
+    for (const auto& s : r.stages) ++count[s.name];
+    EXPECT_GE(count["screen"], 3);  // every start (and any other pose the landmarks fit as well)
+    EXPECT_EQ(count["search"], 1);  // only the one kept
+    EXPECT_EQ(count["final"], 1);   // keep_best 2, but one candidate came out of the search
+    EXPECT_EQ(count["light"], 2);   // once a round
+    EXPECT_EQ(count["refine"], 1);  // the second round runs the refine stages on the winner
+    for (const auto& s : r.stages)
+        if (s.name == "light") {
+            EXPECT_EQ(s.params.render_width_px, 64);
+        }
+    EXPECT_EQ(r.stages.back().name, "refine");
+    // Saved with the result, and read back the same.
+    const nlohmann::json j = result_to_json(r)["parameters"];
+    EXPECT_EQ(j["search_keep"], 1);
+    EXPECT_EQ(j["refine_stages"][0]["name"], "refine");
+    EXPECT_EQ(to_json(registration_params_from_json(j, "params")), j);
+    nlohmann::json bad = j;
+    bad["search_keep"] = -1;
+    EXPECT_THROW(registration_params_from_json(bad, "params"), InputError);
+    bad = j;
+    bad["light_width_px"] = 8;
+    EXPECT_THROW(registration_params_from_json(bad, "params"), InputError);
+    bad = j;
+    bad["refine_stages"][0]["max_evaluations"] = 0;
     EXPECT_THROW(registration_params_from_json(bad, "params"), InputError);
 }
 

@@ -64,6 +64,9 @@ TEST(GlGolden, SphereOptionsVariants) {
     opt.directional_light = true;
     opt.light_direction_camera = {0.4, -0.3, -1};
     expect_same_pictures(v, preset_transfer_function("cortex_t1"), nullptr, K, T, opt, "distant light from aside");
+    opt = RenderOptions{};
+    opt.surface_only = true;
+    expect_same_pictures(v, preset_transfer_function("cortex_t1"), nullptr, K, T, opt, "surface only");
 }
 
 TEST(GlGolden, SlabsWithMaskAndDistortion) {
@@ -138,6 +141,11 @@ TEST(GlGolden, BundledMriCrop) {
     const Eigen::Vector3d c = v.geom.center_world_mm();
     expect_same_pictures(v, preset_transfer_function("cortex_t1"), &mask, K, standard_view("left", c, 250), RenderOptions{},
                          "MRI crop, brain mask, cortex_t1");
+    RenderOptions surface;
+    surface.surface_only = true;
+    surface.want_rgb = false;
+    expect_same_pictures(v, preset_transfer_function("surface_white"), &mask, K, standard_view("left", c, 250), surface,
+                         "MRI crop, brain mask, surface_white, surface only (registration)");
     expect_same_pictures(v, preset_transfer_function("skin"), nullptr, K, standard_view("superior", c, 250),
                          RenderOptions{}, "MRI crop, skin");
 }

@@ -79,7 +79,7 @@ struct Layer {
 struct RaycastProgram {
     Program prog;
     GLint R = -1, cam = -1, ifw = -1, dims = -1, box_lo = -1, box_hi = -1, weight = -1, grad_scale = -1, grad_n = -1,
-          grad_pts = -1, iso = -1, step = -1, ambient = -1, diffuse = -1, term = -1, cov = -1, shading = -1, has_mesh = -1, directional = -1, light_world = -1;
+          grad_pts = -1, iso = -1, step = -1, ambient = -1, diffuse = -1, term = -1, cov = -1, shading = -1, has_mesh = -1, directional = -1, light_world = -1, surface_only = -1;
 };
 
 class GlRenderer final : public FusionRenderer {
@@ -364,6 +364,7 @@ public:
                                               .normalized()
                                               .cast<float>();
                 glUniform1i(P.directional, opt.directional_light ? 1 : 0);
+                glUniform1i(P.surface_only, opt.surface_only ? 1 : 0);
                 glUniform3f(P.light_world, L.x(), L.y(), L.z());
             }
             glUniform1i(P.has_mesh, mesh_triangles_ > 0 ? 1 : 0);
@@ -420,6 +421,7 @@ private:
         P.cov = loc("u_cov");
         P.shading = loc("u_shading");
         P.directional = loc("u_directional");
+        P.surface_only = loc("u_surface_only");
         P.light_world = loc("u_light_world");
         P.has_mesh = loc("u_has_mesh");
         return programs_.emplace(layers, std::move(P)).first->second;

@@ -56,6 +56,9 @@ struct RegistrationParams {
     double light_max_offset = 0.5;
     int light_grid = 5;    // points per axis of the first grid (a finer 3 x 3 follows)
     int light_rounds = 1;  // estimate + final stages, repeated
+    /// Working width the light grid is scored at; 0: the first final stage's. The light's
+    /// direction is a broad trend, visible at a small size.
+    int light_width_px = 0;
     bool mask_glare = true;          // drop specular glare, gauze and drapes from the similarity mask
     /// Drop vessels and blood: pixels more saturated or darker than the ROI's median by this many
     /// median absolute deviations. 0 disables.
@@ -73,6 +76,10 @@ struct RegistrationParams {
     /// every run towards the landmark pose.
     bool landmark_prior_expected = false;
     double sample_distance_mm = 1.0;
+    /// Render only the first crossing of the surface level, opaque (RenderOptions::surface_only):
+    /// a composited rendering's grey depends on where the sample lattice falls on the surface,
+    /// which made the similarity saw-tooth along the viewing axis.
+    bool surface_only = false;
     /// What the rendering contributes to the similarity: (1 - w) * shading + w * relief, where
     /// relief is the negated depth of the first surface hit (1 unit per 10 mm); after the
     /// high-pass it is the local sulcal depth, which does not depend on where the light was.
@@ -85,8 +92,14 @@ struct RegistrationParams {
     /// each searched independently through `search_stages`.
     std::vector<PoseParams> starts = {{0, 0, 0, 0, 0, 0}};
     std::vector<StageParams> search_stages;
+    /// After the first search stage only this many starts (the lowest costs) go on through the
+    /// later search stages: a cheap screen of every subspace, then work where it pays. 0: all.
+    int search_keep = 0;
     int keep_best = 1;  // candidates carried into the final stages
     std::vector<StageParams> final_stages;
+    /// Stages of the later light rounds (the winner only, after the light is re-estimated at
+    /// its refined pose); empty: `final_stages` again.
+    std::vector<StageParams> refine_stages;
     /// Makes the similarity renderer (not serialised); empty: the CPU ray caster. The CLI sets
     /// it from --renderer through cf_render_gl's renderer_factory() (core links no GL).
     std::function<std::unique_ptr<Renderer>(const Volume&, const TransferFunction&, const LabelVolume*)> renderer_factory;

@@ -24,6 +24,11 @@ struct RenderOptions {
     /// towards the light). Registration estimates it from the photo: the lamp is rarely at the lens.
     bool directional_light = false;
     std::array<double, 3> light_direction_camera{0, 0, -1};
+    /// Show only the first crossing of the transfer function's surface level (where opacity
+    /// reaches 0.5), shaded and opaque: no compositing of the samples around it. Registration
+    /// uses it: a composited pixel's grey changes with where the sample lattice falls on the
+    /// surface, so the similarity saw-toothed along the viewing axis; this does not.
+    bool surface_only = false;
     double early_termination_alpha = 0.98;
     double coverage_alpha = 0.5;          // coverage mask and depth: where opacity reaches this
     bool want_rgb = true;                 // skip work the caller does not need
