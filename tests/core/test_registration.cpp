@@ -41,6 +41,7 @@ RegistrationParams small_params() {
     RegistrationParams p = RegistrationParams::defaults();
     for (auto& s : p.search_stages) s.max_evaluations = 15;
     for (auto& s : p.final_stages) s.max_evaluations = 15;
+    for (auto& s : p.refine_stages) s.max_evaluations = 15;
     p.starts.resize(2);  // two subspaces still exercise the multi-start path, at test speed
     return p;
 }
