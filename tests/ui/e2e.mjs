@@ -475,6 +475,16 @@ try {
   await rp.getByTestId("job-card").first().waitFor({ timeout: 15000 });
   expect(await rp.getByTestId("start-register").count() === 0, "a reviewer gets no Start registration on Jobs");
   expect(await rp.locator('[data-testid="cancel-job"]:visible').count() === 0, "a reviewer gets no Cancel");
+  // The session ends elsewhere (revoked): the next request brings the login screen, saying why.
+  const tok = await rp.evaluate(() => JSON.parse(sessionStorage.getItem("cortexfuse.session")).token);
+  expect((await fetch(`${base}/api/logout`, { method: "POST", headers: { Authorization: `Bearer ${tok}` } })).ok, "the session is revoked");
+  await rp.getByRole("link", { name: "Cases" }).first().tap();
+  await rp.getByTestId("login-note").filter({ hasText: "session has ended" }).waitFor({ timeout: 15000 });
+  step(`revoked session: ${await rp.getByTestId("login-note").textContent()}`);
+  await rp.getByTestId("login-name").fill("rita");
+  await rp.getByTestId("login-password").fill("review-pass-1");
+  await rp.getByTestId("login-submit").tap();
+  await rp.getByTestId("sb-role").filter({ hasText: "rita (reviewer, read-only)" }).waitFor({ timeout: 10000 });
   await rp.getByTestId("auth-button").filter({ hasText: "Log out" }).tap();
   if (remoteIp) await rp.getByTestId("login-form").waitFor({ timeout: 10000 });
   else await rp.getByTestId("sb-role").filter({ hasText: "Kiosk" }).waitFor({ timeout: 10000 });

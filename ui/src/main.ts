@@ -69,6 +69,7 @@ linkBanner.after(trackerBanner);
 const trackerMonitor = new TrackerMonitor();
 const linkMonitor = new LinkMonitor();
 let daemonStartedUtc: string | null = null;
+let lastSessionProbe = 0;
 
 // ---- status bar --------------------------------------------------------------------------
 const sb = {
@@ -121,7 +122,8 @@ function askLogin(note: string, fromKiosk = false): void {
 // Any 401 (an expired session, or a host that must log in): the login screen, saying why.
 auth.onUnauthorized = (e: ApiError) => {
   if (needLogin) return;
-  askLogin(session.token ? `Your session has ended (${e.message}). Log in again.` : "This screen is not the cart's kiosk: log in to continue.");
+  askLogin(session.token ? "Your session has ended (expired, or logged out elsewhere). Log in again to go on." : "This screen is not the cart's kiosk: log in to continue.");
+  void e;
 };
 
 authBtn.addEventListener("click", async () => {
@@ -213,6 +215,12 @@ async function pollStatus(): Promise<void> {
 function onPushState(s: PushState): void {
   if (needLogin) return;
   setPill(sb.link, s === "open" ? "Live" : s === "connecting" ? "Connecting…" : "Daemon unreachable", s === "open" ? "ok" : s === "connecting" ? "warn" : "bad");
+  // A refused upgrade looks like a lost link; with a token it may be an expired session: ask
+  // over HTTP (a 401 there brings the login screen), at most every 5 s.
+  if (s === "closed" && session.token && Date.now() - lastSessionProbe > 5000) {
+    lastSessionProbe = Date.now();
+    apiJson("GET", "/api/cases?limit=1").catch(() => { /* a 401 is handled by auth.onUnauthorized; unreachable is on the link line */ });
+  }
   const lv = linkMonitor.update(s);
   linkBanner.hidden = lv.banner === null;
   linkBanner.querySelector(".text")!.textContent = lv.banner ?? "";
