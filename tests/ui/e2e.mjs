@@ -28,6 +28,8 @@ fs.writeFileSync(config, JSON.stringify({
 
 let daemon, daemonB, browser, failed = false, registered = false;
 const step = (s) => console.log(`[e2e] ${s}`);
+// Timeouts of the store's heavy calls (zip export/import, uploads) stretch under a sanitizer build.
+const SLOW = process.env.CF_E2E_SLOW ? 4 : 1;
 const expect = (cond, what) => { if (!cond) throw new Error(`expected: ${what}`); };
 
 /** Starts cortexfused with a configuration file; resolves to { proc, base } once it listens. */
@@ -41,10 +43,16 @@ const startDaemon = (configFile) => new Promise((resolve, reject) => {
     const m = /listening on (http:\/\/[^\s]+)/.exec(out);
     if (m) { clearTimeout(t); resolve({ proc, base: m[1].replace(/\/$/, "").replace("0.0.0.0", "127.0.0.1") }); }
   });
-  proc.on("exit", (c) => { clearTimeout(t); reject(new Error(`daemon exited ${c}: ${err.slice(-2000)}`)); });
+  proc.on("exit", (c, sig) => {
+    clearTimeout(t);
+    if (!proc.stoppedByTest) daemonDeaths.push(`cortexfused exited (code ${c}, signal ${sig}) by itself; its stderr ends:\n${err.slice(-6000)}`);
+    reject(new Error(`daemon exited ${c}: ${err.slice(-2000)}`));
+  });
 });
+const daemonDeaths = [];
 const stopDaemon = async (proc) => {
   if (!proc || proc.exitCode !== null || proc.signalCode !== null) return;
+  proc.stoppedByTest = true;
   proc.kill("SIGTERM");
   await new Promise((r) => { const t = setTimeout(() => { proc.kill("SIGKILL"); r(); }, 10000); proc.on("exit", () => { clearTimeout(t); r(); }); });
 };
@@ -270,12 +278,16 @@ try {
   const phantomDir = path.join(tmp, "state", "cases", "phantom", "case_0000");
   await page.getByTestId("upload-photo-file").setInputFiles(path.join(phantomDir, JSON.parse(fs.readFileSync(path.join(phantomDir, "case.json"), "utf8")).photo));
   await page.getByTestId("upload-photo").tap();
-  await page.getByTestId("case-holdings").filter({ hasText: "1 photo" }).waitFor({ timeout: 20000 });
+  await page.getByTestId("case-holdings").filter({ hasText: "1 photo" }).waitFor({ timeout: 20000 * SLOW });
   step("photo uploaded into the new case");
-  // A photo from the cart's (simulated) camera.
-  await page.getByTestId("capture-photo").tap();
-  await page.getByTestId("case-holdings").filter({ hasText: "2 photos" }).waitFor({ timeout: 60000 });
-  step("photo captured from the camera into the new case");
+  // A photo from the cart's (simulated) camera (left out under a sanitizer build: its first
+  // capture builds the scene, minutes there).
+  if (process.env.CF_E2E_SLOW) step("NOTE: CF_E2E_SLOW: the camera capture is left out");
+  else {
+    await page.getByTestId("capture-photo").tap();
+    await page.getByTestId("case-holdings").filter({ hasText: "2 photos" }).waitFor({ timeout: 60000 });
+    step("photo captured from the camera into the new case");
+  }
 
   // ---- A case of the store: import the phantom folder, see what it holds, move a landmark's
   // photo twin and add an ROI point by touch (new revisions; an ROI of 2 points refused),
@@ -284,7 +296,7 @@ try {
   await page.waitForFunction(() => [...document.querySelectorAll('[data-testid="import-folder"] option')].some((o) => o.value === "phantom/case_0000"), null, { timeout: 20000 });
   await page.getByTestId("import-folder").selectOption("phantom/case_0000");
   await page.getByTestId("import-case").tap();
-  await page.waitForURL(/#\/case\/\d+\/contents$/, { timeout: 60000 });
+  await page.waitForURL(/#\/case\/\d+\/contents$/, { timeout: 60000 * SLOW });
   const importedId = Number(/case\/(\d+)/.exec(page.url())[1]);
   await page.getByTestId("case-holdings").waitFor({ timeout: 20000 });
   const held = await page.getByTestId("case-holdings").textContent();
@@ -294,7 +306,7 @@ try {
   await shot("10-case-contents");
   await checkTargets("case contents");
   // Export the case as a zip (a real download), and import it again: the same uid is refused (409) in words.
-  const [dl] = await Promise.all([page.waitForEvent("download", { timeout: 30000 }), page.getByTestId("case-export").tap()]);
+  const [dl] = await Promise.all([page.waitForEvent("download", { timeout: 30000 * SLOW }), page.getByTestId("case-export").tap()]);
   const zipPath = path.join(tmp, "export.zip");
   await dl.saveAs(zipPath);
   const zip = fs.readFileSync(zipPath);
@@ -303,7 +315,7 @@ try {
   await page.getByTestId("import-zip-file").setInputFiles(zipPath);
   await page.getByTestId("import-zip").tap();
   const dup = page.getByTestId("error-banner").filter({ hasText: /already|exists|uid/i });
-  await dup.waitFor({ timeout: 30000 });
+  await dup.waitFor({ timeout: 30000 * SLOW });
   step(`export ${zip.length} bytes; importing it again: ${await dup.locator(".text").textContent()}`);
   await dup.getByRole("button").tap();
   // Sorting by title both ways.
@@ -549,6 +561,7 @@ try {
 } catch (e) {
   failed = true;
   console.error(`[e2e] FAIL: ${e?.stack ?? e}`);
+  for (const d of daemonDeaths) console.error(`[e2e] ${d}`);
   try { const p = browser?.pages()[0]; if (p) await p.screenshot({ path: path.join(artDir, "failure.png") }); } catch {}
 } finally {
   try { await browser?.close(); } catch {}
