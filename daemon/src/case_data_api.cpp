@@ -6,9 +6,12 @@
 #include <unistd.h>
 
 #include <atomic>
+#include <climits>
 #include <fstream>
 #include <opencv2/imgcodecs.hpp>
+#include <optional>
 #include <regex>
+#include <thread>
 #include <sstream>
 
 #include "case_api.hpp"
@@ -38,6 +41,26 @@ Response guarded(F&& f) {
     } catch (const StoreError& e) {
         rethrow_store_error(e);
     }
+}
+
+/// civetweb's connection threads have small stacks (Debian builds it with a fixed stack size);
+/// ITK's readers, libzip and the exports go deeper than that (under ASan by far). The heavy
+/// handlers run on a thread of their own with the default stack, the caller waiting.
+Handler on_own_stack(Handler h) {
+    return [h = std::move(h)](const Request& r) {
+        std::optional<Response> out;
+        std::exception_ptr err;
+        std::thread t([&] {
+            try {
+                out = h(r);
+            } catch (...) {
+                err = std::current_exception();
+            }
+        });
+        t.join();
+        if (err) std::rethrow_exception(err);
+        return std::move(*out);
+    };
 }
 
 ApiError bad(const std::string& what, const std::string& problem) { return ApiError(400, "bad_request", what + ": " + problem); }
@@ -236,6 +259,7 @@ void register_case_data_endpoints(EndpointRegistry& reg, CaseStore& store, const
                             return resp;
                         });
                     }};
+    up_vol.handler = on_own_stack(std::move(up_vol.handler));
     up_vol.raw_body = true;
     up_vol.max_body_bytes = max_upload_bytes;
     reg.add(up_vol);
@@ -280,6 +304,7 @@ void register_case_data_endpoints(EndpointRegistry& reg, CaseStore& store, const
                               throw ApiError(400, "bad_request", e.what());
                           }
                           if (r.raw.empty()) throw bad(what, "the request body is empty (send the file's bytes)");
+                          if (r.raw.size() > std::size_t(INT_MAX)) throw bad(what, "is larger than 2 GiB (no photo is)");
                           std::string lower = name;
                           for (auto& ch : lower) ch = char(std::tolower(static_cast<unsigned char>(ch)));
                           const bool want_png = lower.size() > 4 && lower.compare(lower.size() - 4, 4, ".png") == 0;
@@ -305,6 +330,7 @@ void register_case_data_endpoints(EndpointRegistry& reg, CaseStore& store, const
                               return resp;
                           });
                       }};
+    up_photo.handler = on_own_stack(std::move(up_photo.handler));
     up_photo.raw_body = true;
     up_photo.max_body_bytes = max_upload_bytes;
     reg.add(up_photo);
@@ -346,11 +372,11 @@ void register_case_data_endpoints(EndpointRegistry& reg, CaseStore& store, const
              }});
     reg.add({"POST", "/api/cases/{id}/landmarks", "cases.set_landmarks", Access::write,
              "Set the landmarks (a new revision): {landmarks: [{label, world_mm, pixel}], photo_id?}; >= 4 pairs, inside the photo, not collinear",
-             [st](const Request& r) {
+             on_own_stack([st](const Request& r) {
                  const auto id = case_id_param(r);
                  const std::string what = "case " + std::to_string(id) + " landmarks";
                  only_fields(r.body, {"landmarks", "photo_id", "id"}, what);
-                 if (r.body["landmarks"].is_array() && r.body["landmarks"].size() > 1000) throw bad(what, "more than 1000 landmarks");
+                 if (r.body.contains("landmarks") && r.body["landmarks"].is_array() && r.body["landmarks"].size() > 1000) throw bad(what, "more than 1000 landmarks");
                  return guarded([&] {
                      const CaseRecord rec = st->get_case(id);
                      const PhotoRecord& photo = photo_for(rec, r.body, what);
@@ -365,7 +391,7 @@ void register_case_data_endpoints(EndpointRegistry& reg, CaseStore& store, const
                      }
                      return ok(landmarks_json(st->set_landmarks(id, pts, photo.id, actor_of(r.client))), 201);
                  });
-             }});
+             })});
 
     // ---- ROI ----
     reg.add({"GET", "/api/cases/{id}/roi", "cases.roi", Access::read, "The case's ROI (latest revision; ?revisions=all for every one)",
@@ -386,7 +412,7 @@ void register_case_data_endpoints(EndpointRegistry& reg, CaseStore& store, const
              }});
     reg.add({"POST", "/api/cases/{id}/roi", "cases.set_roi", Access::write,
              "Set the ROI (a new revision): {points: [[u, v], ...] (>= 3, inside the photo), tension?: -1..1, type?, photo_id?}",
-             [st](const Request& r) {
+             on_own_stack([st](const Request& r) {
                  const auto id = case_id_param(r);
                  const std::string what = "case " + std::to_string(id) + " roi";
                  only_fields(r.body, {"points", "tension", "type", "photo_id", "id"}, what);
@@ -406,7 +432,7 @@ void register_case_data_endpoints(EndpointRegistry& reg, CaseStore& store, const
                      }
                      return ok(roi_json(st->set_roi(id, roi, photo.id, actor_of(r.client))), 201);
                  });
-             }});
+             })});
 
     // ---- registrations and results ----
     reg.add({"GET", "/api/cases/{id}/registrations", "cases.registrations", Access::read,
@@ -450,7 +476,7 @@ void register_case_data_endpoints(EndpointRegistry& reg, CaseStore& store, const
     // ---- moving a case ----
     reg.add({"GET", "/api/cases/{id}/export", "cases.export", Access::read,
              "The case as a zip (case.json + store.json + files; docs/case-store.md), audited as case.export",
-             [st, work_dir](const Request& r) {
+             on_own_stack([st, work_dir](const Request& r) {
                  const auto id = case_id_param(r);
                  return guarded([&] {
                      const CaseRecord rec = st->get_case(id);
@@ -461,7 +487,7 @@ void register_case_data_endpoints(EndpointRegistry& reg, CaseStore& store, const
                      resp.headers["Content-Disposition"] = "attachment; filename=\"" + name + "\"";
                      return resp;
                  });
-             }});
+             })});
     Endpoint imp{"POST", "/api/cases/import-zip", "cases.import_zip", Access::write,
                  "Import a case zip (body: the archive; query: name=case.zip titles a plain case); refused whole when anything in it is bad",
                  [st, work_dir](const Request& r) {
@@ -481,6 +507,7 @@ void register_case_data_endpoints(EndpointRegistry& reg, CaseStore& store, const
                          return resp;
                      });
                  }};
+    imp.handler = on_own_stack(std::move(imp.handler));
     imp.raw_body = true;
     imp.max_body_bytes = max_upload_bytes;
     reg.add(imp);

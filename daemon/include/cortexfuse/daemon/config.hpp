@@ -76,7 +76,7 @@ struct DaemonConfig {
     double job_progress_hz = 10;
     int jobs_kept = 200;
     int job_threads = 0;  ///< a job's TBB arena (and llvmpipe) threads; 0: cores - 1, at least 1
-    int job_nice = 10;    ///< nice value of the job worker threads
+    int job_nice = 0;     ///< nice value of the job worker threads
     // watchdog
     int watchdog_check_ms = 1000;
     int tracker_stall_ms = 5000;

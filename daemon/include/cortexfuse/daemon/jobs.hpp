@@ -91,7 +91,7 @@ public:
         int threads = 0;
         /// Nice value of the worker threads (and the threads they start, e.g. llvmpipe's for a
         /// job's GL context), 0..19: the tracker's and HTTP's threads win the CPU first.
-        int nice = 10;
+        int nice = 0;
     };
     /// The arena concurrency `threads` resolves to (0: hardware cores - 1, at least 1).
     static int resolve_threads(int threads);
