@@ -30,6 +30,7 @@
 
 #include "cortexfuse/core/error.hpp"
 #include "itk_coregister.hpp"
+#include "itk_image.hpp"
 
 namespace cf::itkb {
 namespace {
@@ -37,30 +38,6 @@ namespace {
 using FImage = itk::Image<float, 3>;
 using MImage = itk::Image<unsigned char, 3>;
 using Euler = itk::Euler3DTransform<double>;
-
-template <class ImageT, class PixelT>
-typename ImageT::Pointer wrap(const Grid& g, const PixelT* data) {
-    auto img = ImageT::New();
-    typename ImageT::RegionType region;
-    typename ImageT::SizeType size;
-    typename ImageT::SpacingType spacing;
-    typename ImageT::PointType origin;
-    typename ImageT::DirectionType dir;
-    for (int a = 0; a < 3; ++a) {
-        size[a] = size_t(g.dims[a]);
-        spacing[a] = g.spacing[a];
-        origin[a] = g.origin[a];
-        for (int b = 0; b < 3; ++b) dir(a, b) = g.direction[size_t(a * 3 + b)];
-    }
-    region.SetSize(size);
-    img->SetRegions(region);
-    img->SetSpacing(spacing);
-    img->SetOrigin(origin);
-    img->SetDirection(dir);
-    img->Allocate();
-    std::memcpy(img->GetBufferPointer(), data, g.count() * sizeof(PixelT));
-    return img;
-}
 
 void register_transform_io() {
     static std::once_flag once;
@@ -232,10 +209,10 @@ void coregister_rigid(const Grid& fg, const float* fixed, const Grid& mg, const 
                       const CoregConfig& cfg, const CoregStepFn& step, CoregOutput& out) {
     if (cfg.shrink.empty() || cfg.shrink.size() != cfg.smooth_mm.size())
         throw InputError("co-registration", "shrink factors and smoothing sigmas must be given per level");
-    auto f = wrap<FImage>(fg, fixed);
-    auto m = wrap<FImage>(mg, moving);
+    auto f = image_from<FImage>(fg, fixed);
+    auto m = image_from<FImage>(mg, moving);
     MImage::Pointer mask;
-    if (fixed_mask) mask = wrap<MImage>(fg, fixed_mask);
+    if (fixed_mask) mask = image_from<MImage>(fg, fixed_mask);
     out = CoregOutput{};
     if (cfg.metric == 0) {
         using Metric = itk::MattesMutualInformationImageToImageMetricv4<FImage, FImage>;
@@ -344,7 +321,7 @@ void resample_transformed(const Grid& mg, const float* moving, const std::array<
     }
     T->SetMatrix(M);
     T->SetOffset(off);
-    auto m = wrap<FImage>(mg, moving);
+    auto m = image_from<FImage>(mg, moving);
     auto rs = itk::ResampleImageFilter<FImage, FImage>::New();
     rs->SetInput(m);
     rs->SetTransform(T);
@@ -374,7 +351,7 @@ void resample_transformed(const Grid& mg, const float* moving, const std::array<
 
 int keep_clusters(const Grid& g, std::vector<uint8_t>& mask, int min_voxels) {
     using LImage = itk::Image<uint32_t, 3>;
-    auto m = wrap<MImage>(g, mask.data());
+    auto m = image_from<MImage>(g, mask.data());
     auto cc = itk::ConnectedComponentImageFilter<MImage, LImage>::New();
     cc->SetInput(m);
     cc->FullyConnectedOn();

@@ -22,6 +22,7 @@
 
 #include "cortexfuse/core/error.hpp"
 #include "itk_bridge.hpp"
+#include "itk_image.hpp"
 
 namespace fs = std::filesystem;
 
@@ -74,29 +75,6 @@ Grid grid_of(const ImageT* img) {
         for (int b = 0; b < 3; ++b) g.direction[a * 3 + b] = img->GetDirection()(a, b);
     }
     return g;
-}
-
-template <class ImageT>
-typename ImageT::Pointer make_image(const Grid& g) {
-    auto img = ImageT::New();
-    typename ImageT::RegionType region;
-    typename ImageT::SizeType size;
-    typename ImageT::SpacingType spacing;
-    typename ImageT::PointType origin;
-    typename ImageT::DirectionType dir;
-    for (int a = 0; a < 3; ++a) {
-        size[a] = g.dims[a];
-        spacing[a] = g.spacing[a];
-        origin[a] = g.origin[a];
-        for (int b = 0; b < 3; ++b) dir(a, b) = g.direction[a * 3 + b];
-    }
-    region.SetSize(size);
-    img->SetRegions(region);
-    img->SetSpacing(spacing);
-    img->SetOrigin(origin);
-    img->SetDirection(dir);
-    img->Allocate();
-    return img;
 }
 
 // ITK's NIfTI reader accepts a truncated .nii.gz and returns zeros for the missing part,

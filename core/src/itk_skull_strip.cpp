@@ -15,6 +15,7 @@
 #include <string>
 
 #include "cortexfuse/core/error.hpp"
+#include "itk_image.hpp"
 #include "itk_skull_strip.hpp"
 
 namespace cf::itkb {
@@ -41,19 +42,16 @@ struct Block {
     size_t linear(int i, int j, int k) const { return (size_t(k) * dims[1] + j) * dims[0] + i; }
 };
 
+/// The block as an ITK grid: spacing in mm (so radii are in mm on anisotropic grids), origin 0.
+Grid block_grid(const Block& b) {
+    Grid g;
+    g.dims = b.dims;
+    g.spacing = b.spacing_mm;
+    return g;
+}
+
 MaskImage::Pointer new_mask(const Block& b) {
-    auto img = MaskImage::New();
-    MaskImage::RegionType region;
-    MaskImage::SizeType size;
-    MaskImage::SpacingType spacing;
-    for (int a = 0; a < 3; ++a) {
-        size[a] = itk::SizeValueType(b.dims[a]);
-        spacing[a] = b.spacing_mm[a];
-    }
-    region.SetSize(size);
-    img->SetRegions(region);
-    img->SetSpacing(spacing);  // distances in mm, so radii are in mm on anisotropic grids
-    img->Allocate();
+    auto img = make_image<MaskImage>(block_grid(b));
     img->FillBuffer(0);
     return img;
 }
@@ -175,21 +173,7 @@ MaskImage::Pointer pick_overlapping(const MaskImage* m, const MaskImage* seed) {
 
 using FloatImage = itk::Image<float, 3>;
 
-FloatImage::Pointer new_float(const Block& b) {
-    auto img = FloatImage::New();
-    FloatImage::RegionType region;
-    FloatImage::SizeType size;
-    FloatImage::SpacingType spacing;
-    for (int a = 0; a < 3; ++a) {
-        size[a] = itk::SizeValueType(b.dims[a]);
-        spacing[a] = b.spacing_mm[a];
-    }
-    region.SetSize(size);
-    img->SetRegions(region);
-    img->SetSpacing(spacing);
-    img->Allocate();
-    return img;
-}
+FloatImage::Pointer new_float(const Block& b) { return make_image<FloatImage>(block_grid(b)); }
 
 FloatImage::Pointer smooth(const FloatImage* f, double sigma_mm) {
     auto g = itk::SmoothingRecursiveGaussianImageFilter<FloatImage, FloatImage>::New();

@@ -1,5 +1,7 @@
 #include "process.hpp"
 
+#include "../sanitized.hpp"
+
 #include <fcntl.h>
 #include <signal.h>
 #include <sys/resource.h>
@@ -19,17 +21,6 @@ namespace fs = std::filesystem;
 namespace cf::test {
 
 namespace {
-#if defined(__SANITIZE_ADDRESS__)
-constexpr bool kSanitized = true;  // ASan reserves terabytes of shadow address space
-#elif defined(__has_feature)
-#if __has_feature(address_sanitizer)
-constexpr bool kSanitized = true;
-#else
-constexpr bool kSanitized = false;
-#endif
-#else
-constexpr bool kSanitized = false;
-#endif
 
 std::string slurp(const fs::path& p) {
     std::ifstream in(p, std::ios::binary);

@@ -11,6 +11,7 @@
 #include "cortexfuse/core/error.hpp"
 #include "cortexfuse/core/skull_strip.hpp"
 #include "cortexfuse/core/volume.hpp"
+#include "../sanitized.hpp"
 
 namespace fs = std::filesystem;
 using namespace cf;
@@ -22,17 +23,7 @@ struct Head {
     LabelVolume reference;
 };
 
-#if defined(__SANITIZE_ADDRESS__)
-constexpr bool kSanitized = true;
-#elif defined(__has_feature)
-#if __has_feature(address_sanitizer)
-constexpr bool kSanitized = true;
-#else
-constexpr bool kSanitized = false;
-#endif
-#else
-constexpr bool kSanitized = false;
-#endif
+using cf::test::kSanitized;
 
 // The shipped MNE head (1 mm, 256^3) and its FreeSurfer mask (loaded once).
 const Head& head_1mm() {
