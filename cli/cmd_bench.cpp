@@ -1,10 +1,13 @@
 // cortexfuse bench render|nmi|register: the engine's timings as one JSON object on stdout
 // (medians, p90, peak RSS). The logic lives in bench/ (cortexfuse/bench/bench.hpp).
+#include <filesystem>
 #include <iostream>
 #include <memory>
 
 #include "commands.hpp"
 #include "cortexfuse/bench/bench.hpp"
+#include "cortexfuse/core/case.hpp"
+#include "cortexfuse/core/registration.hpp"
 #include "progress_bar.hpp"
 
 namespace cf::cli {
@@ -22,12 +25,12 @@ void print(const nlohmann::json& j, bool json_out) {
 void add_bench(CLI::App& app) {
     struct Opts {
         std::string volume = std::string(CF_DATA_DIR) + "/t1_head_mne_ecog.nii.gz";
-        std::string mask, size = "375x250", tf = "skin", renderer = "cpu", save_frame, case_dir;
+        std::string mask, size = "375x250", tf = "skin", renderer = "cpu", save_frame, case_dir, params_file, reference_file;
         std::string phantom_mask = std::string(CF_DATA_DIR) + "/brainmask_mne_ecog_binary.nii.gz";
         int frames = 30, warmup = 5, threads = 0, bins = 64, repeat = 20, cases = 4;
         double sample_mm = 1.0;
         uint64_t seed = 1;
-        bool json = false, no_shading = false, masked = false, keep = false;
+        bool json = false, no_shading = false, masked = false, keep = false, reference_seed = false;
     };
     auto o = std::make_shared<Opts>();
     auto* bench = app.add_subcommand("bench", "Time the engine: one JSON object with medians on stdout");
@@ -98,6 +101,10 @@ void add_bench(CLI::App& app) {
     reg->add_option("--seed", o->seed, "Phantom seed")->capture_default_str();
     reg->add_option("--threads", o->threads, "Worker threads (0: all cores)")->capture_default_str();
     reg->add_flag("--keep", o->keep, "Keep the generated cases (the folder is in the JSON)");
+    reg->add_option("--params", o->params_file, "Registration parameters to time (JSON; default: the defaults)");
+    reg->add_option("--reference", o->reference_file,
+                    "A reference schedule (JSON) registered on the same cases in the same run, case by case in turn");
+    reg->add_flag("--reference-seed", o->reference_seed, "The seed's schedule as the reference");
     reg->add_flag("--json", o->json, "One line of JSON (default: indented)");
     reg->callback([o] {
         run_guarded("bench register", [&] {
@@ -109,6 +116,15 @@ void add_bench(CLI::App& app) {
             c.seed = o->seed;
             c.threads = o->threads;
             c.keep = o->keep;
+            if (!o->params_file.empty())
+                c.params = registration_params_from_json(read_json_file(o->params_file), o->params_file);
+            if (!o->reference_file.empty()) {
+                c.reference = registration_params_from_json(read_json_file(o->reference_file), o->reference_file);
+                c.reference_name = std::filesystem::path(o->reference_file).stem().string();
+            } else if (o->reference_seed) {
+                c.reference = RegistrationParams::seed_schedule();
+                c.reference_name = "seed_schedule";
+            }
             ProgressBar bar("bench register");
             print(bench::run_register_bench(c, &bar.progress()), o->json);
             return 0;

@@ -216,7 +216,7 @@ void add_evaluate(CLI::App& app) {
                     };
                     const RegistrationResult r = engine->run(in, &inner);
                     // Search or similarity? The truth's cost at the last stage beside the result's.
-                    const StageParams& last = !params.final_stages.empty() ? params.final_stages.back() : params.search_stages.back();
+                    const StageParams& last = params.last_stage();
                     const Pose T_ref = in.initial_pose ? *in.initial_pose : r.initial_T_camera_from_world;
                     const bool lit = params.estimate_light;
                     const auto light = lit ? std::optional<Eigen::Vector3d>(r.light_direction_camera) : std::nullopt;

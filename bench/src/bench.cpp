@@ -394,61 +394,81 @@ json run_register_bench(const RegisterBenchConfig& c, const Progress* progress) 
         dirs = generate_phantoms(tmp.path, c.cases, c.volume, c.mask, p, inner);
         generate_s = ms_since(t0) / 1000.0;
     }
-    // Cases of one phantom run share a volume: prepare the engine once per volume file.
-    std::map<std::string, std::unique_ptr<Registration>> engines;
-    std::vector<double> seconds, evals, mre;
-    json per_case = json::array();
-    double prepare_s = 0;
+    // One schedule's figures; cases of one phantom run share a volume, so each schedule
+    // prepares its engine once per volume file.
+    struct Variant {
+        RegistrationParams params;
+        std::map<std::string, std::unique_ptr<Registration>> engines;
+        std::vector<double> seconds, evals, mre;
+        json per_case = json::array();
+        double prepare_s = 0;
+    };
+    std::vector<Variant> variants(c.reference ? 2 : 1);
+    variants[0].params = c.params ? *c.params : RegistrationParams::defaults();
+    if (c.reference) variants[1].params = *c.reference;
     for (size_t i = 0; i < dirs.size(); ++i) {
         if (progress) progress->check();
         LoadedCase lc = load_case(dirs[i]);
         const std::string key = lc.spec.volume_path.string() + "|" + (lc.spec.brain_mask_path ? lc.spec.brain_mask_path->string() : "");
-        auto& engine = engines[key];
-        if (!engine) {
-            const auto t0 = Clock::now();
-            engine = std::make_unique<Registration>(lc.volume, lc.mask, RegistrationParams::defaults());
-            prepare_s += ms_since(t0) / 1000.0;
+        for (size_t v = 0; v < variants.size(); ++v) {
+            Variant& V = variants[v];
+            auto& engine = V.engines[key];
+            if (!engine) {
+                const auto t0 = Clock::now();
+                engine = std::make_unique<Registration>(lc.volume, lc.mask, V.params);
+                V.prepare_s += ms_since(t0) / 1000.0;
+            }
+            Progress inner;
+            if (progress) {
+                inner.cancel = progress->cancel;
+                inner.report = [&](const std::string& stage, double f) {
+                    const double done = (double(i) + (double(v) + f) / double(variants.size())) / double(dirs.size());
+                    (*progress)(dirs[i].filename().string() + (v ? " (" + c.reference_name + ") " : " ") + stage, 0.2 + 0.8 * done);
+                };
+            }
+            const RegistrationResult r = engine->run(lc.photo, &inner);
+            V.seconds.push_back(r.seconds);
+            V.evals.push_back(r.evaluations);
+            json row = {{"case", dirs[i].filename().string()},
+                        {"photo_size", size_string(lc.spec.camera.width, lc.spec.camera.height)},
+                        {"seconds", r.seconds},
+                        {"evaluations", r.evaluations}};
+            if (lc.spec.truth) {
+                const PoseErrors e = pose_errors(*lc.spec.truth, lc.spec.camera, r.T_camera_from_world, engine->renderer());
+                V.mre.push_back(e.mre_mm);
+                row["mre_mm"] = e.mre_mm;
+            }
+            V.per_case.push_back(row);
         }
-        Progress inner;
-        if (progress) {
-            inner.cancel = progress->cancel;
-            inner.report = [&](const std::string& stage, double f) {
-                (*progress)(dirs[i].filename().string() + " " + stage, 0.2 + 0.8 * (double(i) + f) / double(dirs.size()));
-            };
-        }
-        const RegistrationResult r = engine->run(lc.photo, &inner);
-        seconds.push_back(r.seconds);
-        evals.push_back(r.evaluations);
-        json row = {{"case", dirs[i].filename().string()},
-                    {"photo_size", size_string(lc.spec.camera.width, lc.spec.camera.height)},
-                    {"seconds", r.seconds},
-                    {"evaluations", r.evaluations}};
-        if (lc.spec.truth) {
-            const PoseErrors e = pose_errors(*lc.spec.truth, lc.spec.camera, r.T_camera_from_world, engine->renderer());
-            mre.push_back(e.mre_mm);
-            row["mre_mm"] = e.mre_mm;
-        }
-        per_case.push_back(row);
     }
     if (progress) (*progress)("done", 1.0);
+    auto figures = [&](const Variant& V) {
+        json j = {{"prepare_s", V.prepare_s}};
+        merge(j, stats_json(stats(V.seconds), "seconds"));
+        j["evaluations_median"] = stats(V.evals).median;
+        j["ms_per_evaluation_median"] = stats([&] {
+            std::vector<double> v;
+            for (size_t i = 0; i < V.seconds.size(); ++i) v.push_back(1000.0 * V.seconds[i] / std::max(1.0, V.evals[i]));
+            return v;
+        }()).median;
+        if (!V.mre.empty()) j["mre_mm_median"] = stats(V.mre).median;
+        j["per_case"] = V.per_case;
+        return j;
+    };
     json j = {{"mode", "register"},
               {"cases", dirs.size()},
               {"case_dir", c.case_dir.empty() ? (c.keep ? tmp.path.string() : "") : c.case_dir.string()},
               {"generated", c.case_dir.empty()},
               {"seed", c.seed},
               {"threads", threads},
-              {"generate_s", generate_s},
-              {"prepare_s", prepare_s}};
-    merge(j, stats_json(stats(seconds), "seconds"));
-    const Stats es = stats(evals);
-    j["evaluations_median"] = es.median;
-    j["ms_per_evaluation_median"] = stats([&] {
-        std::vector<double> v;
-        for (size_t i = 0; i < seconds.size(); ++i) v.push_back(1000.0 * seconds[i] / std::max(1.0, evals[i]));
-        return v;
-    }()).median;
-    if (!mre.empty()) j["mre_mm_median"] = stats(mre).median;
-    j["per_case"] = per_case;
+              {"generate_s", generate_s}};
+    merge(j, figures(variants[0]));
+    if (c.reference) {
+        json r = figures(variants[1]);
+        r["name"] = c.reference_name;
+        j["reference"] = r;
+        j["reference_over_params_seconds"] = r["seconds_median"].get<double>() / std::max(1e-9, j["seconds_median"].get<double>());
+    }
     j["peak_rss_mb"] = peak_rss_mb();
     return j;
 }

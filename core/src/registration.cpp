@@ -128,6 +128,12 @@ void RegistrationParams::validate(const std::string& ctx) const {
             if (!std::isfinite(v) || std::abs(v) > 90) bad("start offsets must be finite and within +-90");
 }
 
+const StageParams& RegistrationParams::last_stage() const {
+    if (final_stages.empty()) return search_stages.back();
+    const bool refined = estimate_light && light_rounds > 1 && !refine_stages.empty();
+    return refined ? refine_stages.back() : final_stages.back();
+}
+
 namespace {
 json stage_json(const StageParams& s) {
     return {{"name", s.name}, {"fwhm_mm", s.fwhm_mm}, {"step_mm", s.step_mm}, {"step_deg", s.step_deg},
@@ -831,10 +837,7 @@ RegistrationResult Registration::run(const PhotoInput& in, const Progress* progr
     res.light_direction_camera = scorer.light_direction();
     // Report the similarity at the final pose at the last stage's level.
     {
-        const bool refined = params_.estimate_light && params_.light_rounds > 1 && !params_.refine_stages.empty();
-        const StageParams& last = params_.final_stages.empty() ? params_.search_stages.back()
-                                  : refined                   ? params_.refine_stages.back()
-                                                              : params_.final_stages.back();
+        const StageParams& last = params_.last_stage();
         double s = 0;
         evaluate(best.x, last, s);
         res.similarity = s;

@@ -12,6 +12,7 @@
 #include "cortexfuse/bench/bench.hpp"
 #include "cortexfuse/core/error.hpp"
 #include "cortexfuse/core/pose.hpp"
+#include "cortexfuse/core/registration.hpp"
 
 namespace fs = std::filesystem;
 using nlohmann::json;
@@ -185,6 +186,40 @@ TEST_F(BenchTest, RenderKeysFrameAndErrors) {
     bad = c;
     bad.volume = dir_ / "missing.nii.gz";
     EXPECT_THROW(cf::bench::run_render_bench(bad), cf::InputError);
+}
+
+TEST(BenchRegister, TimesAScheduleBesideAReferenceOnTheSameCases) {
+    // Two tiny schedules that differ in their evaluation budget, on one generated phantom.
+    auto tiny = [](int evals) {
+        cf::RegistrationParams p = cf::RegistrationParams::defaults();
+        p.starts.resize(1);
+        p.estimate_light = false;
+        p.light_rounds = 1;
+        p.search_keep = 0;
+        p.search_stages = {{"search", 4, 2, 2, 64, evals, 0.01, 0.01}};
+        p.final_stages = {{"final", 2, 1, 1, 96, evals, 0.01, 0.01}};
+        p.refine_stages.clear();
+        return p;
+    };
+    cf::bench::RegisterBenchConfig c;
+    c.volume = fs::path(CF_DATA_DIR) / "t1_head_mne_ecog.nii.gz";
+    c.mask = fs::path(CF_DATA_DIR) / "brainmask_mne_ecog_binary.nii.gz";
+    c.cases = 1;
+    c.params = tiny(10);
+    c.reference = tiny(20);
+    c.reference_name = "bigger";
+    const json j = cf::bench::run_register_bench(c);
+    ASSERT_TRUE(j.contains("reference"));
+    EXPECT_EQ(j["reference"]["name"], "bigger");
+    for (const json* v : {&j, &j["reference"]}) {
+        EXPECT_GT((*v)["seconds_median"].get<double>(), 0.0);
+        EXPECT_EQ((*v)["per_case"].size(), 1u);
+        EXPECT_TRUE((*v)["per_case"][0].contains("mre_mm"));  // generated cases carry their truth
+    }
+    // Each schedule ran its own budget (the simplex may stop early, never late).
+    EXPECT_LE(j["evaluations_median"].get<double>(), 2 * 10 + 2);
+    EXPECT_GT(j["reference"]["evaluations_median"].get<double>(), j["evaluations_median"].get<double>());
+    EXPECT_GT(j["reference_over_params_seconds"].get<double>(), 0.0);
 }
 
 TEST(BenchCli, NmiJsonParses) {

@@ -9,7 +9,10 @@
 //
 // Thread contract: every function is re-entrant; a run uses `threads` worker threads.
 #include <filesystem>
+#include <optional>
 #include <nlohmann/json.hpp>
+
+#include "cortexfuse/core/registration.hpp"
 #include <string>
 #include <utility>
 #include <vector>
@@ -101,10 +104,17 @@ struct RegisterBenchConfig {
     uint64_t seed = 1;
     int threads = 0;
     bool keep = false;                    // keep the generated phantom folder (its path is in the JSON)
+    /// The schedule timed (default: RegistrationParams::defaults()) and, optionally, a reference
+    /// schedule registered on the same cases in the same run, case by case in turn, so both
+    /// see the same machine (e.g. the previous defaults or the seed's schedule).
+    std::optional<RegistrationParams> params;
+    std::optional<RegistrationParams> reference;
+    std::string reference_name = "reference";
 };
-/// Registers each case once from its landmarks (the default parameters) and times it.
+/// Registers each case once from its landmarks and times it.
 /// JSON: seconds_median/_p90, evaluations_median, per-case seconds, evaluations and MRE
-/// (when the case has truth), prepare_s, peak_rss_mb.
+/// (when the case has truth), prepare_s, peak_rss_mb; with a reference, the same figures for it
+/// under "reference" and reference_over_params_seconds (the ratio of the medians).
 nlohmann::json run_register_bench(const RegisterBenchConfig& c, const Progress* progress = nullptr);
 
 }  // namespace cf::bench

@@ -109,6 +109,9 @@ struct RegistrationParams {
     static RegistrationParams seed_schedule();
     /// Throws InputError(context, ...) on bad values.
     void validate(const std::string& context) const;
+    /// The stage that runs last (refine, final or search): the result's similarity is reported
+    /// at its size and blur.
+    const StageParams& last_stage() const;
 };
 
 nlohmann::json to_json(const RegistrationParams& p);
