@@ -35,6 +35,13 @@ Actor actor_of(const Client& c) {
     return a;
 }
 
+Response ok(json j, int status) {
+    Response r;
+    r.status = status;
+    r.json = std::move(j);
+    return r;
+}
+
 fs::path case_dir_from_name(const fs::path& cases_root, const json& v, const std::string& field) {
     if (!v.is_string()) throw ApiError(400, "bad_request", field + ": must be a string (a case folder such as phantom/case_0000)");
     const std::string name = v.get<std::string>();
@@ -134,21 +141,6 @@ void only_fields(const json& b, std::initializer_list<const char*> known, const 
     }
 }
 
-Response ok(json j, int status = 200) {
-    Response r;
-    r.status = status;
-    r.json = std::move(j);
-    return r;
-}
-
-template <class F>
-Response guarded(F&& f) {
-    try {
-        return f();
-    } catch (const StoreError& e) {
-        rethrow_store_error(e);
-    }
-}
 
 /// Copies the case folder's files into `staging` and, for each file case.json names outside
 /// the folder (it must stay inside `root`), a copy beside them, with case.json pointing at it.

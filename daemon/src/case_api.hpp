@@ -14,6 +14,17 @@ namespace cf::daemon {
 /// StoreError -> ApiError (NotFound 404, Conflict 409, Invalid 400, Busy 503, others 500).
 [[noreturn]] void rethrow_store_error(const cf::db::StoreError& e);
 cf::db::Actor actor_of(const Client& c);
+/// A JSON answer with `status`.
+Response ok(nlohmann::json j, int status = 200);
+/// f(), with a StoreError turned into its ApiError (rethrow_store_error).
+template <class F>
+Response guarded(F&& f) {
+    try {
+        return f();
+    } catch (const cf::db::StoreError& e) {
+        rethrow_store_error(e);
+    }
+}
 /// A case folder named relative to `cases_root` ("phantom/case_0000"): parts of
 /// [A-Za-z0-9_.-], no '..', must hold a case.json. ApiError 400 / 404 naming `field`.
 std::filesystem::path case_dir_from_name(const std::filesystem::path& cases_root, const nlohmann::json& v, const std::string& field);

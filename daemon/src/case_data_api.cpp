@@ -27,21 +27,6 @@ using namespace cf::db;
 
 namespace {
 
-Response ok(json j, int status = 200) {
-    Response r;
-    r.status = status;
-    r.json = std::move(j);
-    return r;
-}
-
-template <class F>
-Response guarded(F&& f) {
-    try {
-        return f();
-    } catch (const StoreError& e) {
-        rethrow_store_error(e);
-    }
-}
 
 /// civetweb's connection threads have small stacks (Debian builds it with a fixed stack size);
 /// ITK's readers, libzip and the exports go deeper than that (under ASan by far). The heavy
