@@ -3,6 +3,7 @@
 #include <nlohmann/json.hpp>
 
 #include "commands.hpp"
+#include "cortexfuse/drivers/tracker/frame_json.hpp"
 #include "cortexfuse/drivers/tracker/session.hpp"
 
 namespace cf::cli {
@@ -16,30 +17,6 @@ struct TrackCmd {
     bool json = false, tx = false, bx = false, discover = false;
 };
 
-const char* tool_status(cf::tracker::ToolReading::Status s) {
-    using S = cf::tracker::ToolReading::Status;
-    return s == S::ok ? "ok" : s == S::missing ? "missing" : s == S::disabled ? "disabled" : "unoccupied";
-}
-
-nlohmann::json frame_json(const cf::tracker::TrackerFrame& f) {
-    nlohmann::json j{{"seq", f.sequence}, {"frame", f.frame_number}, {"system_status", f.system_status},
-                     {"receive_steady_ns", f.receive_steady_ns}, {"latency_us", (f.publish_steady_ns - f.receive_steady_ns) / 1000.0}};
-    j["tools"] = nlohmann::json::array();
-    for (const auto& t : f.tools) {
-        nlohmann::json tj{{"name", t.name}, {"handle", t.handle}, {"status", tool_status(t.status)}, {"stale", t.stale},
-                          {"out_of_volume", t.out_of_volume}, {"partially_out_of_volume", t.partially_out_of_volume},
-                          {"port_status", t.port_status}};
-        if (t.T_tracker_from_tool) {
-            const Eigen::Quaterniond q(t.T_tracker_from_tool->linear());
-            const Eigen::Vector3d p = t.T_tracker_from_tool->translation();
-            tj["q_wxyz"] = {q.w(), q.x(), q.y(), q.z()};
-            tj["t_mm"] = {p.x(), p.y(), p.z()};
-            tj["rms_mm"] = t.rms_error_mm;
-        }
-        j["tools"].push_back(tj);
-    }
-    return j;
-}
 }  // namespace
 
 void add_track(CLI::App& app) {
@@ -87,10 +64,10 @@ void add_track(CLI::App& app) {
                 if (!f) continue;
                 seq = f->sequence;
                 ++got;
-                if (o->json) std::cout << frame_json(*f).dump() << "\n";
+                if (o->json) std::cout << cf::tracker::frame_to_json(*f).dump() << "\n";
                 else {
                     std::cout << "frame " << f->frame_number;
-                    for (const auto& tool : f->tools) std::cout << "  " << tool.name << ":" << tool_status(tool.status) << (tool.stale ? "(stale)" : "");
+                    for (const auto& tool : f->tools) std::cout << "  " << tool.name << ":" << cf::tracker::tool_status_name(tool.status) << (tool.stale ? "(stale)" : "");
                     std::cout << "\n";
                 }
             }

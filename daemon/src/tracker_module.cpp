@@ -8,40 +8,12 @@
 #include <cstring>
 
 #include "cortexfuse/daemon/log.hpp"
+#include "cortexfuse/drivers/tracker/frame_json.hpp"
 #include "cortexfuse/drivers/tracker/transport.hpp"
 
 namespace cf::daemon {
 
 using namespace cf::tracker;
-
-namespace {
-const char* tool_status(ToolReading::Status s) {
-    using S = ToolReading::Status;
-    return s == S::ok ? "ok" : s == S::missing ? "missing" : s == S::disabled ? "disabled" : "unoccupied";
-}
-}  // namespace
-
-nlohmann::json frame_to_json(const TrackerFrame& f) {
-    nlohmann::json j{{"seq", f.sequence},
-                     {"frame", f.frame_number},
-                     {"system_status", f.system_status},
-                     {"receive_steady_ns", f.receive_steady_ns},
-                     {"latency_us", (f.publish_steady_ns - f.receive_steady_ns) / 1000.0}};
-    j["tools"] = nlohmann::json::array();
-    for (const auto& t : f.tools) {
-        nlohmann::json tj{{"name", t.name}, {"handle", t.handle}, {"status", tool_status(t.status)}, {"stale", t.stale},
-                          {"out_of_volume", t.out_of_volume}, {"partially_out_of_volume", t.partially_out_of_volume}};
-        if (t.T_tracker_from_tool) {
-            const Eigen::Quaterniond q(t.T_tracker_from_tool->linear());
-            const Eigen::Vector3d p = t.T_tracker_from_tool->translation();
-            tj["q_wxyz"] = {q.w(), q.x(), q.y(), q.z()};
-            tj["t_mm"] = {p.x(), p.y(), p.z()};
-            tj["rms_mm"] = t.rms_error_mm;
-        }
-        j["tools"].push_back(tj);
-    }
-    return j;
-}
 
 TrackerModule::TrackerModule(const DaemonConfig& c) : cfg_(c) {}
 

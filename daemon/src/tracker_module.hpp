@@ -13,11 +13,12 @@
 
 #include "cortexfuse/daemon/config.hpp"
 #include "cortexfuse/drivers/sim/tracker_sim.hpp"
+#include "cortexfuse/drivers/tracker/frame_json.hpp"
 #include "cortexfuse/drivers/tracker/session.hpp"
 
 namespace cf::daemon {
 
-nlohmann::json frame_to_json(const cf::tracker::TrackerFrame& f);
+using cf::tracker::frame_to_json;  // the push channel's and the CLI's tracker frame JSON
 
 class TrackerModule {
 public:
