@@ -23,6 +23,25 @@ namespace {
 double seconds_since(Clock::time_point t0) { return std::chrono::duration<double>(Clock::now() - t0).count(); }
 constexpr int kPriorReferenceWidthPx = 375;  // prior tolerances are given in pixels at this width
 constexpr int kPivotWidthPx = 190;           // the depth under the ROI needs no more
+
+/// The 1st and 99th percentiles of `img` (CV_32F) where `valid` is set; false (lo, hi unset)
+/// with 20 such pixels or fewer. `scratch` is reused between calls (the scorer's hot path).
+bool valid_percentile_range(const cv::Mat& img, const cv::Mat& valid, std::vector<float>& scratch, float& lo, float& hi) {
+    scratch.clear();
+    for (int y = 0; y < img.rows; ++y) {
+        const float* c = img.ptr<float>(y);
+        const uint8_t* v = valid.ptr<uint8_t>(y);
+        for (int x = 0; x < img.cols; ++x)
+            if (v[x]) scratch.push_back(c[x]);
+    }
+    if (scratch.size() <= 20) return false;
+    const size_t a = scratch.size() / 100, b = scratch.size() - 1 - scratch.size() / 100;
+    std::nth_element(scratch.begin(), scratch.begin() + long(a), scratch.end());
+    lo = scratch[a];
+    std::nth_element(scratch.begin(), scratch.begin() + long(b), scratch.end());
+    hi = scratch[b];
+    return true;
+}
 }  // namespace
 
 // ---------------------------------------------------------------- parameters as data
@@ -335,20 +354,8 @@ PhotoChannel photo_channel(const cv::Mat& bgr, const std::string& channel, bool 
     }
     // Robust normalisation to [0, 1] over the valid pixels.
     std::vector<float> vals;
-    for (int y = 0; y < bgr.rows; ++y) {
-        const float* c = out.channel.ptr<float>(y);
-        const uint8_t* v = out.valid.ptr<uint8_t>(y);
-        for (int x = 0; x < bgr.cols; ++x)
-            if (v[x]) vals.push_back(c[x]);
-    }
     float lo = 0, hi = 1;
-    if (vals.size() > 20) {
-        const size_t a = vals.size() / 100, b = vals.size() - 1 - vals.size() / 100;
-        std::nth_element(vals.begin(), vals.begin() + long(a), vals.end());
-        lo = vals[a];
-        std::nth_element(vals.begin(), vals.begin() + long(b), vals.end());
-        hi = vals[b];
-    }
+    valid_percentile_range(out.channel, out.valid, vals, lo, hi);
     if (hi - lo < 1e-6f) hi = lo + 1e-6f;
     out.channel = (out.channel - lo) / (hi - lo);
     cv::min(cv::max(out.channel, 0.0), 1.0, out.channel);
@@ -525,20 +532,8 @@ private:
         if (p_.robust_range) {
             // 1st and 99th percentiles: the extremes are single noisy pixels, and a range that
             // jumps between poses makes the histogram (and NMI) jump with it.
-            vals_.clear();
-            for (int y = 0; y < dst.rows; ++y) {
-                const float* d = dst.ptr<float>(y);
-                const uint8_t* v = L.photo.valid.ptr<uint8_t>(y);
-                for (int x = 0; x < dst.cols; ++x)
-                    if (v[x]) vals_.push_back(d[x]);
-            }
-            if (vals_.size() > 20) {
-                const size_t a = vals_.size() / 100, b = vals_.size() - 1 - vals_.size() / 100;
-                std::nth_element(vals_.begin(), vals_.begin() + long(a), vals_.end());
-                mn = vals_[a];
-                std::nth_element(vals_.begin(), vals_.begin() + long(b), vals_.end());
-                mx = vals_[b];
-            }
+            float lo = 0, hi = 0;
+            if (valid_percentile_range(dst, L.photo.valid, vals_, lo, hi)) mn = lo, mx = hi;
         } else {
             cv::minMaxLoc(dst, &mn, &mx, nullptr, nullptr, L.photo.valid);
         }
