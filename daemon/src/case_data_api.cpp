@@ -48,6 +48,22 @@ Handler on_own_stack(Handler h) {
     };
 }
 
+/// A raw-body upload endpoint: the body up to `max_upload_bytes` (store.max_upload_bytes), the
+/// handler on a full stack (it reads the file with ITK, OpenCV or libzip before storing it).
+void add_upload(EndpointRegistry& reg, Endpoint e, std::int64_t max_upload_bytes) {
+    e.handler = on_own_stack(std::move(e.handler));
+    e.raw_body = true;
+    e.max_body_bytes = max_upload_bytes;
+    reg.add(std::move(e));
+}
+
+/// A file download: its bytes, with a Content-Disposition naming it.
+Response attachment(std::string bytes, const std::string& mime, const std::string& filename) {
+    Response resp = Response::binary(std::move(bytes), mime);
+    resp.headers["Content-Disposition"] = "attachment; filename=\"" + filename + "\"";
+    return resp;
+}
+
 ApiError bad(const std::string& what, const std::string& problem) { return ApiError(400, "bad_request", what + ": " + problem); }
 
 /// A query parameter (HTTP) or a params field (RPC: strings and integers land in params too).
@@ -244,10 +260,7 @@ void register_case_data_endpoints(EndpointRegistry& reg, CaseStore& store, const
                             return resp;
                         });
                     }};
-    up_vol.handler = on_own_stack(std::move(up_vol.handler));
-    up_vol.raw_body = true;
-    up_vol.max_body_bytes = max_upload_bytes;
-    reg.add(up_vol);
+    add_upload(reg, std::move(up_vol), max_upload_bytes);
     reg.add({"GET", "/api/cases/{id}/volumes/{volume_id}", "cases.volume", Access::read, "Download a volume of the case (its file as uploaded)",
              [st](const Request& r) {
                  const auto id = case_id_param(r);
@@ -256,8 +269,7 @@ void register_case_data_endpoints(EndpointRegistry& reg, CaseStore& store, const
                      const CaseRecord rec = st->get_case(id);
                      for (const auto& v : rec.volumes)
                          if (v.id == vid) {
-                             Response resp = Response::binary(st->read_blob(v.blob.sha256), "application/octet-stream");
-                             resp.headers["Content-Disposition"] = "attachment; filename=\"" + v.original_name + "\"";
+                             Response resp = attachment(st->read_blob(v.blob.sha256), "application/octet-stream", v.original_name);
                              st->audit(actor_of(r.client), "volume.download", id, {{"volume_id", vid}});
                              return resp;
                          }
@@ -315,10 +327,7 @@ void register_case_data_endpoints(EndpointRegistry& reg, CaseStore& store, const
                               return resp;
                           });
                       }};
-    up_photo.handler = on_own_stack(std::move(up_photo.handler));
-    up_photo.raw_body = true;
-    up_photo.max_body_bytes = max_upload_bytes;
-    reg.add(up_photo);
+    add_upload(reg, std::move(up_photo), max_upload_bytes);
     reg.add({"GET", "/api/cases/{id}/photos/{photo_id}", "cases.photo", Access::read, "Download a photo of the case (image/jpeg or image/png)",
              [st](const Request& r) {
                  const auto id = case_id_param(r);
@@ -449,8 +458,7 @@ void register_case_data_endpoints(EndpointRegistry& reg, CaseStore& store, const
                      const CaseRecord rec = st->get_case(id);
                      for (const auto& x : rec.results)
                          if (x.id == rid) {
-                             Response resp = Response::binary(st->read_blob(x.blob.sha256), x.media_type);
-                             resp.headers["Content-Disposition"] = "attachment; filename=\"" + x.name + "\"";
+                             Response resp = attachment(st->read_blob(x.blob.sha256), x.media_type, x.name);
                              st->audit(actor_of(r.client), "result.download", id, {{"result_id", rid}});
                              return resp;
                          }
@@ -468,9 +476,7 @@ void register_case_data_endpoints(EndpointRegistry& reg, CaseStore& store, const
                      Scratch scratch(work_dir, "export");
                      const std::string name = "case_" + std::to_string(id) + ".zip";
                      st->export_case_zip(id, scratch.dir / name, actor_of(r.client));
-                     Response resp = Response::binary(read_file(scratch.dir / name), "application/zip");
-                     resp.headers["Content-Disposition"] = "attachment; filename=\"" + name + "\"";
-                     return resp;
+                     return attachment(read_file(scratch.dir / name), "application/zip", name);
                  });
              })});
     Endpoint imp{"POST", "/api/cases/import-zip", "cases.import_zip", Access::write,
@@ -492,10 +498,7 @@ void register_case_data_endpoints(EndpointRegistry& reg, CaseStore& store, const
                          return resp;
                      });
                  }};
-    imp.handler = on_own_stack(std::move(imp.handler));
-    imp.raw_body = true;
-    imp.max_body_bytes = max_upload_bytes;
-    reg.add(imp);
+    add_upload(reg, std::move(imp), max_upload_bytes);
 }
 
 }  // namespace cf::daemon
