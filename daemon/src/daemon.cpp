@@ -22,6 +22,7 @@
 #include "case_api.hpp"
 #include "cortexfuse/db/case_store.hpp"
 #include "http_server.hpp"
+#include "navigation_api.hpp"
 #include "render_module.hpp"
 #include "tracker_module.hpp"
 
@@ -267,6 +268,7 @@ void Daemon::start() {
     d.register_endpoints();
     register_case_endpoints(d.registry, *d.store, d.cases_dir, d.work_dir, d.cfg.session_ttl_s);
     register_case_data_endpoints(d.registry, *d.store, d.work_dir, d.cfg.max_upload_bytes);
+    register_navigation_endpoints(d.registry, *d.store, *d.tracker, NavigationOptions{d.cfg.t1_path});
     cf::db::CaseStore* store = d.store.get();
     d.http->set_authenticator([store](const std::string& token, Client& c) {
         try {

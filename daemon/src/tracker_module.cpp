@@ -95,7 +95,16 @@ void TrackerModule::start_threads() {
         source_desc_ = "tcp";
     }
     session_ = std::make_unique<TrackerSession>(std::move(t), sc);
-    if (sink_) session_->set_frame_callback(sink_);
+    // The driver thread: keep the frame for recent_frames() (a copy under a short lock), then
+    // hand it to the daemon's sink.
+    session_->set_frame_callback([this](const TrackerFrame& f) {
+        {
+            std::lock_guard lk(recent_mu_);
+            recent_.push_back(f);
+            while (recent_.size() > kRecentFrames) recent_.pop_front();
+        }
+        if (sink_) sink_(f);
+    });
     session_->start();
 }
 
@@ -156,6 +165,15 @@ nlohmann::json TrackerModule::status_json() const {
         j["simulator"] = cache_sim_;
     }
     return j;
+}
+
+std::vector<TrackerFrame> TrackerModule::recent_frames(std::int64_t window_ns) const {
+    const std::int64_t since = steady_ns() - window_ns;
+    std::lock_guard lk(recent_mu_);
+    std::vector<TrackerFrame> out;
+    for (const auto& f : recent_)
+        if (f.publish_steady_ns >= since) out.push_back(f);
+    return out;
 }
 
 nlohmann::json TrackerModule::latest_json() const {

@@ -5,6 +5,7 @@
 // Thread contract: start()/stop() from the daemon's main thread. The session's driver thread
 // calls the frame sink (set before start()) for every new frame; it must be quick (the daemon
 // queues the frame for the push thread). status_json() and latest_json() from any thread.
+#include <deque>
 #include <functional>
 #include <memory>
 #include <mutex>
@@ -40,6 +41,14 @@ public:
     /// is shared by all readers so they do not contend with the driver thread for its mutex.
     cf::tracker::TrackerStatus status() const;
     static constexpr std::int64_t kStatusMaxAgeNs = 100'000'000;
+    /// The frames published within the last `window_ns` (steady clock, publish time), oldest
+    /// first, with staleness as published; at most kRecentFrames are kept (navigation averages
+    /// the pointer tip over them). Any thread.
+    std::vector<cf::tracker::TrackerFrame> recent_frames(std::int64_t window_ns) const;
+    static constexpr std::size_t kRecentFrames = 512;  // 2 s at 250 Hz
+    /// The in-process simulator (tracker.source sim, after start()), else nullptr; its scene
+    /// can be controlled from any thread (TrackerSimulator::hold).
+    cf::sim::TrackerSimulator* simulator() const { return sim_.get(); }
 
 private:
     void start_threads();
@@ -49,6 +58,8 @@ private:
     std::unique_ptr<cf::sim::TrackerSimulator> sim_;
     std::unique_ptr<cf::tracker::TrackerSession> session_;
     std::string source_desc_;
+    mutable std::mutex recent_mu_;  // guards recent_ (the driver thread appends)
+    std::deque<cf::tracker::TrackerFrame> recent_;
     mutable std::mutex cache_mu_;  // guards the three below
     mutable cf::tracker::TrackerStatus cache_;
     mutable nlohmann::json cache_sim_;

@@ -226,7 +226,7 @@ struct TrackerSimulator::Impl {
     };
     std::map<std::uint8_t, Handle> handles;
     std::int64_t t0_ns = 0;
-    std::int64_t frame_base = 0;  // frame = base + floor((now - t0) * rate)
+    std::atomic<std::int64_t> frame_base{0};  // frame = base + floor((now - t0) * rate); read by hold() from other threads
     std::string inbuf;
 
     // Faults (sim thread)
@@ -245,8 +245,27 @@ struct TrackerSimulator::Impl {
     std::atomic<bool> stop{false};
     std::thread thread;
 
+    // Held poses (TrackerSimulator::hold), oldest first; guarded by hold_mu (read by truth()
+    // from any thread). Keyed by the first frame they apply to, so truth stays a function of
+    // the frame number.
+    struct Hold {
+        std::size_t tool = 0;
+        std::uint32_t from_frame = 0;
+        std::optional<Eigen::Isometry3d> T_tracker_from_tool;  // nullopt: the scripted motion
+        bool hidden = false;
+    };
+    mutable std::mutex hold_mu;
+    std::vector<Hold> holds;
+    std::optional<Hold> hold_at(std::size_t tool, std::uint32_t frame) const {
+        std::lock_guard lk(hold_mu);
+        for (auto it = holds.rbegin(); it != holds.rend(); ++it)
+            if (it->tool == tool && it->from_frame <= frame) return *it;
+        return std::nullopt;
+    }
+
     // ---- scene (pure functions of the frame number) ----
     Eigen::Isometry3d scene_pose(std::size_t tool, std::uint32_t frame) const {
+        if (const auto h = hold_at(tool, frame); h && h->T_tracker_from_tool) return *h->T_tracker_from_tool;
         const double t = static_cast<double>(frame) / cfg.frame_rate_hz;
         Eigen::Isometry3d T = Eigen::Isometry3d::Identity();
         const auto tr = trajectory.find(parts[tool]);
@@ -304,6 +323,7 @@ struct TrackerSimulator::Impl {
             if (s.kind == Fault::tool_missing) tt.visible = false;
             if (s.kind == Fault::out_of_volume) tt.out_of_volume = true;
         }
+        if (const auto h = hold_at(tool, frame); h && h->hidden) tt.visible = false;
         if (!tt.visible) tt.out_of_volume = false;
         return tt;
     }
@@ -928,6 +948,16 @@ std::optional<ToolTruth> TrackerSimulator::truth(const std::string& part, std::u
     const auto i = impl_->tool_index(part);
     if (!i) return std::nullopt;
     return impl_->truth(*i, frame);
+}
+
+std::uint32_t TrackerSimulator::hold(const std::string& part, std::optional<Eigen::Isometry3d> T_tracker_from_tool, bool hidden) {
+    const auto i = impl_->tool_index(part);
+    if (!i) throw std::invalid_argument("sim hold: no tool '" + part + "' in the scene");
+    if (T_tracker_from_tool && !T_tracker_from_tool->matrix().allFinite()) throw std::invalid_argument("sim hold: the pose of '" + part + "' is not finite");
+    const std::uint32_t from = impl_->frame_now() + 1;
+    std::lock_guard lk(impl_->hold_mu);
+    impl_->holds.push_back({*i, from, std::move(T_tracker_from_tool), hidden});
+    return from;
 }
 
 std::map<Fault, std::uint64_t> TrackerSimulator::fault_counts() const {

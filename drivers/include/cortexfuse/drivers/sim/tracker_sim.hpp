@@ -108,6 +108,14 @@ public:
     std::uint64_t total_faults() const;
     /// steady_ns times at which the link or the device came back after a disconnect or a power cycle.
     std::vector<std::int64_t> link_restored_ns() const;
+    /// Scene control for workflows with ground truth (e.g. the pointer resting on a fiducial):
+    /// from the next frame on, `part` stays at `T_tracker_from_tool` (nullopt: back to its
+    /// scripted motion), and is reported MISSING while `hidden`. Returns the first frame number
+    /// it applies to; truth() reflects it for that frame and later ones (a device frame counter
+    /// reset by TSTART 80 after a power cycle restarts the numbering, so holds set before it
+    /// apply again only from their frame number on). Any thread. Throws std::invalid_argument
+    /// for an unknown part or a pose that is not finite.
+    std::uint32_t hold(const std::string& part, std::optional<Eigen::Isometry3d> T_tracker_from_tool, bool hidden = false);
     /// Inject a fault now (reply faults apply to the next BX/TX reply).
     void inject(Fault f);
     std::uint64_t replies_sent() const { return replies_sent_.load(); }

@@ -1,0 +1,368 @@
+// Patient navigation through the daemon (docs/api/navigation.md), against the NDI simulator
+// reached through the real driver over a pty: the simulator's pointer is placed on fiducials
+// (POST /api/tracker/sim/pointer), recorded, registered by core's Umeyama, and the recovered
+// T_image_from_reference is compared with the simulator's truth; an outlier is excluded; the
+// accepted registration lands in the case store. Every bad input is refused with its status and
+// a message naming it, and nothing stored changes.
+// Eigen first: <httplib.h> pulls in <resolv.h>, whose _res macro breaks Eigen's headers.
+#include <Eigen/Geometry>
+
+#include "cortexfuse/daemon/config.hpp"
+#include "cortexfuse/daemon/daemon.hpp"
+
+#include <gtest/gtest.h>
+#include <httplib.h>
+#include <unistd.h>
+
+#include <chrono>
+#include <filesystem>
+#include <opencv2/imgcodecs.hpp>
+#include <thread>
+
+using namespace cf::daemon;
+using nlohmann::json;
+namespace fs = std::filesystem;
+
+namespace {
+
+fs::path g_state;
+std::unique_ptr<Daemon> g_daemon;
+
+int port() {
+    if (!g_daemon) {
+        g_state = fs::temp_directory_path() / ("cf_daemon_nav_" + std::to_string(::getpid()));
+        json c = default_config_json();
+        c["http"]["listen"] = "127.0.0.1:0";
+        c["state_dir"] = g_state.string();
+        c["renderer"]["kind"] = "cpu";
+        c["jobs"]["phantom_cases_at_start"] = 0;
+        c["tracker"]["sim_link"] = "tcp";  // holds its rate on the loaded test machine (docs/daemon.md)
+        g_daemon = std::make_unique<Daemon>(parse_config(c, "test"));
+        g_daemon->start();
+    }
+    return g_daemon->port();
+}
+
+class Env : public ::testing::Environment {
+public:
+    void TearDown() override {
+        if (!g_daemon) return;
+        EXPECT_TRUE(g_daemon->stop());
+        g_daemon.reset();
+        fs::remove_all(g_state);
+    }
+};
+const auto* const g_env = ::testing::AddGlobalTestEnvironment(new Env);
+
+struct Reply {
+    int status = 0;
+    std::string body;
+    json j;
+    std::string content_type;
+};
+
+Reply request(const std::string& method, const std::string& path, const std::string& body = "", const std::string& token = "") {
+    httplib::Client c("127.0.0.1", port());
+    c.set_read_timeout(60, 0);
+    httplib::Headers h;
+    if (!token.empty()) h.emplace("Authorization", "Bearer " + token);
+    httplib::Result r = method == "GET"      ? c.Get(path.c_str(), h)
+                        : method == "DELETE" ? c.Delete(path.c_str(), h)
+                                             : c.Post(path.c_str(), h, body, "application/json");
+    Reply out;
+    if (!r) return out;
+    out.status = r->status;
+    out.body = r->body;
+    out.content_type = r->get_header_value("Content-Type");
+    out.j = json::parse(r->body, nullptr, false);
+    return out;
+}
+Reply get(const std::string& path, const std::string& token = "") { return request("GET", path, "", token); }
+Reply post(const std::string& path, const json& body, const std::string& token = "") { return request("POST", path, body.dump(), token); }
+Reply del(const std::string& path, const std::string& token = "") { return request("DELETE", path, "", token); }
+
+std::int64_t new_case(const std::string& title) {
+    const Reply r = post("/api/cases", {{"title", title}});
+    EXPECT_EQ(r.status, 201) << r.body;
+    return r.j.value("id", std::int64_t{0});
+}
+
+std::string token_of(const std::string& name, const std::string& role) {
+    Reply r = post("/api/users", {{"name", name}, {"password", "long enough pw"}, {"role", role}});
+    EXPECT_TRUE(r.status == 201 || r.status == 409) << r.body;
+    r = post("/api/login", {{"name", name}, {"password", "long enough pw"}});
+    EXPECT_EQ(r.status, 200) << r.body;
+    return r.j.value("token", std::string());
+}
+
+Eigen::Vector3d v3(const json& a) { return {a[0].get<double>(), a[1].get<double>(), a[2].get<double>()}; }
+Eigen::Matrix4d m4(const json& a) {
+    Eigen::Matrix4d T;
+    for (int r = 0; r < 4; ++r)
+        for (int c = 0; c < 4; ++c) T(r, c) = a[r][c].get<double>();
+    return T;
+}
+
+/// The newest frame number the daemon has (0 before the first).
+std::uint32_t frame_now() {
+    const Reply r = get("/api/navigation/pointer");
+    return r.j.contains("frame") && r.j["frame"].is_object() ? r.j["frame"]["frame"].get<std::uint32_t>() : 0;
+}
+
+/// Waits until the tracker streams both tools (up to 20 s).
+void wait_streaming() {
+    const auto until = std::chrono::steady_clock::now() + std::chrono::seconds(20);
+    while (std::chrono::steady_clock::now() < until) {
+        const Reply r = get("/api/navigation/pointer");
+        if (r.status == 200 && r.j["p_reference_mm"].is_array()) return;
+        std::this_thread::sleep_for(std::chrono::milliseconds(100));
+    }
+    FAIL() << "the tracker did not stream both tools within 20 s";
+}
+
+/// Places the simulated pointer and waits until a whole recording window (0.3 s) of frames
+/// shows it there.
+json sim_pointer(const json& body) {
+    const Reply r = post("/api/tracker/sim/pointer", body);
+    EXPECT_EQ(r.status, 200) << r.body;
+    const std::uint32_t from = r.j.value("from_frame", 0u);
+    const auto until = std::chrono::steady_clock::now() + std::chrono::seconds(10);
+    // 60 Hz: 0.3 s is 18 frames; a few more for the frames in flight.
+    while (frame_now() < from + 24 && std::chrono::steady_clock::now() < until) std::this_thread::sleep_for(std::chrono::milliseconds(40));
+    return r.j;
+}
+
+/// What a case holds for navigation, and its results and non-view audit entries.
+json snapshot(std::int64_t id) {
+    const std::string c = "/api/cases/" + std::to_string(id);
+    json audit = json::array();
+    const json trail = get(c + "/audit").j["audit"];  // a value: a range-for over a temporary's member would dangle
+    for (const auto& e : trail)
+        if (e["action"] != "case.view") audit.push_back(e);
+    json rec = get(c).j;
+    return {{"nav", get(c + "/navigation").j}, {"results", rec["results"]}, {"state", rec["state"]}, {"audit", audit}};
+}
+
+const json kImageFiducials = {{{"label", "nasion"}, {"p_image_mm", {2, -95, 10}}},   {{"label", "left ear"}, {"p_image_mm", {75, -5, -5}}},
+                              {{"label", "right ear"}, {"p_image_mm", {-74, -3, -6}}}, {{"label", "vertex"}, {"p_image_mm", {3, 10, 92}}},
+                              {{"label", "forehead L"}, {"p_image_mm", {45, -80, 45}}}, {{"label", "occiput"}, {"p_image_mm", {-5, 95, 20}}}};
+
+TEST(Navigation, FiducialsTouchedWithTheSimulatedPointerGiveTheTruePatientRegistration) {
+    const auto id = new_case("navigation truth");
+    const std::string c = "/api/cases/" + std::to_string(id);
+    ASSERT_EQ(post(c + "/state", {{"state", "planned"}}).status, 200);
+    Reply r = post(c + "/navigation/image-fiducials", {{"fiducials", kImageFiducials}});
+    ASSERT_EQ(r.status, 201) << r.body;
+    const std::int64_t image_rev = r.j["revision"];
+    wait_streaming();
+
+    Eigen::Matrix4d T_truth = Eigen::Matrix4d::Identity();
+    for (const auto& f : kImageFiducials) {
+        const json s = sim_pointer({{"touch_image_mm", f["p_image_mm"]}});
+        T_truth = m4(s["T_image_from_reference_truth"]);
+        r = post(c + "/navigation/record", {{"label", f["label"]}});
+        ASSERT_EQ(r.status, 201) << f["label"] << ": " << r.body;
+        const Eigen::Vector3d p_ref = v3(r.j["recorded"]["p_reference_mm"]);
+        // The simulator's noise: 0.05 mm per axis and 0.05 degrees on each tool, averaged.
+        EXPECT_LT((p_ref - v3(s["p_reference_mm"])).norm(), 0.25) << f["label"];
+        EXPECT_LT(r.j["recorded"]["spread_mm"].get<double>(), 0.3);
+        EXPECT_GE(r.j["recorded"]["frames"].get<int>(), 10);  // 0.3 s at 60 Hz
+    }
+    EXPECT_FALSE(T_truth.isIdentity());
+    r = get(c + "/navigation");
+    ASSERT_EQ(r.j["patient_fiducials"]["fiducials"].size(), kImageFiducials.size());
+
+    r = post(c + "/navigation/register", json::object());
+    ASSERT_EQ(r.status, 200) << r.body;
+    EXPECT_LT(r.j["fre_mm"].get<double>(), 0.25) << r.body;
+    EXPECT_EQ(r.j["excluded"].size(), 0u);
+    EXPECT_EQ(r.j["n_used"], 6);
+    const Eigen::Matrix4d T = m4(r.j["T_image_from_reference"]);
+    const double angle_deg = Eigen::AngleAxisd(Eigen::Matrix3d(T.topLeftCorner<3, 3>().transpose() * T_truth.topLeftCorner<3, 3>())).angle() * 180 / M_PI;
+    EXPECT_LT(angle_deg, 0.3);
+    for (const auto& f : kImageFiducials) {  // every fiducial mapped within the noise
+        const Eigen::Vector4d p_ref = T_truth.inverse() * v3(f["p_image_mm"]).homogeneous();
+        EXPECT_LT(((T * p_ref).head<3>() - v3(f["p_image_mm"])).norm(), 0.3);
+    }
+    EXPECT_GT(r.j["predicted_tre_mm"].get<double>(), 0.0);
+    EXPECT_LT(r.j["predicted_tre_mm"].get<double>(), 0.3);
+
+    // An 8 mm slip on one fiducial: excluded as an outlier, the rest still fits within noise.
+    const json off = {kImageFiducials[3]["p_image_mm"][0].get<double>() + 8.0, kImageFiducials[3]["p_image_mm"][1], kImageFiducials[3]["p_image_mm"][2]};
+    sim_pointer({{"touch_image_mm", off}});
+    ASSERT_EQ(post(c + "/navigation/record", {{"label", "vertex"}}).status, 201);
+    r = post(c + "/navigation/register", {{"outlier_mm", 3}});
+    ASSERT_EQ(r.status, 200) << r.body;
+    ASSERT_EQ(r.j["excluded"], json::array({"vertex"})) << r.body;
+    EXPECT_LT(r.j["fre_mm"].get<double>(), 0.25);
+    for (const auto& row : r.j["fiducials"])
+        if (row["label"] == "vertex") {
+            EXPECT_FALSE(row["used"].get<bool>());
+            EXPECT_NEAR(row["residual_mm"].get<double>(), 8.0, 0.5);
+        }
+    // Without exclusion the slip shows in the FRE.
+    EXPECT_GT(post(c + "/navigation/register", {{"outlier_mm", 0}}).j["fre_mm"].get<double>(), 2.0);
+
+    // Accept: stored with its parameters, audited, the case moves to patient_registered.
+    const json computed = r.j;
+    r = post(c + "/navigation/accept", {{"image_fiducials_revision", computed["image_fiducials_revision"]},
+                                        {"patient_fiducials_revision", computed["patient_fiducials_revision"]}, {"outlier_mm", 3}});
+    ASSERT_EQ(r.status, 201) << r.body;
+    EXPECT_EQ(r.j["state"], "patient_registered");
+    EXPECT_EQ(r.j["T_image_from_reference"], computed["T_image_from_reference"]);
+    EXPECT_EQ(computed["image_fiducials_revision"], image_rev);
+    r = get(c + "/navigation");
+    ASSERT_TRUE(r.j["accepted"].is_object()) << r.body;
+    EXPECT_EQ(r.j["accepted"]["params"]["outlier_mm"], 3.0);
+    EXPECT_EQ(r.j["accepted"]["excluded"], json::array({"vertex"}));
+    EXPECT_EQ(r.j["accepted_count"], 1);
+    bool audited = false;
+    const json trail = get(c + "/audit").j["audit"];
+    for (const auto& e : trail) audited = audited || e["action"] == "navigation.accept";
+    EXPECT_TRUE(audited);
+
+    // Redo: delete one fiducial, then the old revisions can no longer be accepted.
+    ASSERT_EQ(del(c + "/navigation/patient-fiducials/vertex").status, 200);
+    r = post(c + "/navigation/accept", {{"image_fiducials_revision", computed["image_fiducials_revision"]},
+                                        {"patient_fiducials_revision", computed["patient_fiducials_revision"]}});
+    EXPECT_EQ(r.status, 409) << r.body;
+    EXPECT_NE(r.body.find("changed"), std::string::npos) << r.body;
+    ASSERT_EQ(del(c + "/navigation/patient-fiducials").status, 200);
+    EXPECT_EQ(get(c + "/navigation").j["patient_fiducials"]["fiducials"].size(), 0u);
+    EXPECT_EQ(get(c + "/navigation").j["accepted_count"], 1);  // the accepted one is kept
+}
+
+TEST(Navigation, BadInputIsRefusedAndNothingStoredChanges) {
+    const auto id = new_case("navigation bad input");
+    const std::string c = "/api/cases/" + std::to_string(id);
+    // No case.
+    EXPECT_EQ(get("/api/cases/99999/navigation").status, 404);
+    EXPECT_EQ(post("/api/cases/99999/navigation/record", {{"label", "a"}}).status, 404);
+    EXPECT_EQ(post("/api/cases/abc/navigation/register", json::object()).status, 400);
+    // No image fiducials yet.
+    Reply r = post(c + "/navigation/record", {{"label", "nasion"}});
+    EXPECT_EQ(r.status, 409) << r.body;
+    EXPECT_EQ(post(c + "/navigation/register", json::object()).status, 409);
+    // Bad image fiducials.
+    const json two = {kImageFiducials[0], kImageFiducials[1]};
+    json dup = kImageFiducials;
+    dup[2]["label"] = "nasion";
+    json text = kImageFiducials;
+    text[1]["p_image_mm"] = {"1", 2, 3};
+    json extra = kImageFiducials;
+    extra[0]["colour"] = "red";
+    const json empty_snapshot = snapshot(id);
+    for (const auto& [body, needle] : std::vector<std::pair<json, std::string>>{{{{"fiducials", two}}, "3.."},
+                                                                                {{{"fiducials", dup}}, "twice"},
+                                                                                {{{"fiducials", text}}, "p_image_mm"},
+                                                                                {{{"fiducials", extra}}, "colour"},
+                                                                                {{{"points", kImageFiducials}}, "points"},
+                                                                                {json::array(), "object"}}) {
+        r = post(c + "/navigation/image-fiducials", body);
+        EXPECT_EQ(r.status, 400) << body;
+        EXPECT_NE(r.body.find(needle), std::string::npos) << r.body;
+    }
+    r = request("POST", c + "/navigation/image-fiducials", "{\"fiducials\": [");
+    EXPECT_EQ(r.status, 400) << r.body;
+    EXPECT_EQ(snapshot(id), empty_snapshot);
+
+    // Collinear image fiducials are stored (3 points), but cannot be registered.
+    const json line = {{{"label", "a"}, {"p_image_mm", {0, 0, 0}}}, {{"label", "b"}, {"p_image_mm", {30, 0, 0}}}, {{"label", "c"}, {"p_image_mm", {60, 0.1, 0}}}};
+    ASSERT_EQ(post(c + "/navigation/image-fiducials", {{"fiducials", line}}).status, 201);
+    wait_streaming();
+    for (const auto& f : line) {
+        sim_pointer({{"touch_image_mm", f["p_image_mm"]}});
+        ASSERT_EQ(post(c + "/navigation/record", {{"label", f["label"]}}).status, 201);
+    }
+    r = post(c + "/navigation/register", json::object());
+    EXPECT_EQ(r.status, 409) << r.body;
+    EXPECT_NE(r.body.find("collinear"), std::string::npos) << r.body;
+
+    ASSERT_EQ(post(c + "/navigation/image-fiducials", {{"fiducials", kImageFiducials}}).status, 201);
+    sim_pointer({{"touch_image_mm", kImageFiducials[0]["p_image_mm"]}});
+    ASSERT_EQ(post(c + "/navigation/record", {{"label", "nasion"}}).status, 201);
+    const json before = snapshot(id);
+
+    // Fewer than 3 paired fiducials.
+    r = post(c + "/navigation/register", json::object());
+    EXPECT_EQ(r.status, 409) << r.body;
+    EXPECT_NE(r.body.find("at least 3"), std::string::npos) << r.body;
+    // Unknown label, bad options, unknown fields, malformed JSON.
+    r = post(c + "/navigation/record", {{"label", "chin"}});
+    EXPECT_EQ(r.status, 400) << r.body;
+    EXPECT_NE(r.body.find("chin"), std::string::npos);
+    EXPECT_EQ(post(c + "/navigation/record", {{"label", "nasion"}, {"window_s", 9}}).status, 400);
+    EXPECT_EQ(post(c + "/navigation/record", {{"label", "nasion"}, {"hold", true}}).status, 400);
+    EXPECT_EQ(post(c + "/navigation/record", json::object()).status, 400);
+    EXPECT_EQ(request("POST", c + "/navigation/record", "{label: nasion}").status, 400);
+    EXPECT_EQ(post(c + "/navigation/register", {{"outlier_mm", "big"}}).status, 400);
+    EXPECT_EQ(post(c + "/navigation/accept", json::object()).status, 400);
+    EXPECT_EQ(del(c + "/navigation/patient-fiducials/chin").status, 404);
+
+    // The pointer moving (the simulator's circling motion).
+    sim_pointer({{"free", true}});
+    r = post(c + "/navigation/record", {{"label", "left ear"}});
+    EXPECT_EQ(r.status, 409) << r.body;
+    EXPECT_NE(r.body.find("moved"), std::string::npos) << r.body;
+    // The pointer, then the reference, out of sight (stale after 0.5 s).
+    sim_pointer({{"hidden", true}});
+    r = post(c + "/navigation/record", {{"label", "left ear"}});
+    EXPECT_EQ(r.status, 409) << r.body;
+    EXPECT_NE(r.body.find("pointer"), std::string::npos) << r.body;
+    std::this_thread::sleep_for(std::chrono::milliseconds(600));
+    r = post(c + "/navigation/record", {{"label", "left ear"}});
+    EXPECT_NE(r.body.find("stale"), std::string::npos) << r.body;
+    sim_pointer({{"touch_image_mm", kImageFiducials[1]["p_image_mm"]}});
+    sim_pointer({{"tool", "reference"}, {"hidden", true}});
+    r = post(c + "/navigation/record", {{"label", "left ear"}});
+    EXPECT_EQ(r.status, 409) << r.body;
+    EXPECT_NE(r.body.find("reference"), std::string::npos) << r.body;
+    r = post(c + "/navigation/record", {{"label", "left ear"}, {"pointer", "probe"}});
+    EXPECT_EQ(r.status, 409) << r.body;
+    EXPECT_NE(r.body.find("probe"), std::string::npos) << r.body;
+    // A reviewer reads but changes nothing.
+    const std::string reviewer = token_of("nav_reviewer", "reviewer");
+    EXPECT_EQ(get(c + "/navigation", reviewer).status, 200);
+    EXPECT_EQ(post(c + "/navigation/record", {{"label", "left ear"}}, reviewer).status, 403);
+    EXPECT_EQ(post(c + "/navigation/image-fiducials", {{"fiducials", kImageFiducials}}, reviewer).status, 403);
+    EXPECT_EQ(post(c + "/navigation/accept", {{"image_fiducials_revision", 1}, {"patient_fiducials_revision", 1}}, reviewer).status, 403);
+    EXPECT_EQ(del(c + "/navigation/patient-fiducials", reviewer).status, 403);
+    EXPECT_EQ(post("/api/tracker/sim/pointer", {{"free", true}}, reviewer).status, 403);
+    // Bad simulator requests.
+    EXPECT_EQ(post("/api/tracker/sim/pointer", {{"free", true}, {"hidden", true}}).status, 400);
+    EXPECT_EQ(post("/api/tracker/sim/pointer", {{"tool", "camera"}, {"free", true}}).status, 400);
+    EXPECT_EQ(post("/api/tracker/sim/pointer", {{"touch_image_mm", {1, 2}}}).status, 400);
+    EXPECT_EQ(snapshot(id), before);
+    sim_pointer({{"tool", "reference"}, {"free", true}});
+}
+
+TEST(Navigation, TriPlanarSlicesAndSuggestedFiducials) {
+    Reply r = get("/api/navigation/suggested-fiducials");
+    ASSERT_EQ(r.status, 200) << r.body;
+    ASSERT_EQ(r.j["fiducials"].size(), 6u) << r.body;
+    const Eigen::Vector3d vertex = v3(r.j["fiducials"][5]["p_image_mm"]), left = v3(r.j["fiducials"][3]["p_image_mm"]);
+    EXPECT_GT(left.x() - v3(r.j["fiducials"][4]["p_image_mm"]).x(), 100.0);  // a head is wider than 10 cm (LPS: +x left)
+    r = get("/api/navigation/slices?x=" + std::to_string(vertex.x()) + "&y=" + std::to_string(vertex.y()) + "&z=" + std::to_string(vertex.z()) +
+            "&size=128&format=png");
+    ASSERT_EQ(r.status, 200) << r.body;
+    EXPECT_EQ(r.content_type, "image/png");
+    const cv::Mat img = cv::imdecode(std::vector<uchar>(r.body.begin(), r.body.end()), cv::IMREAD_COLOR);
+    ASSERT_EQ(img.cols, 3 * 128);
+    ASSERT_EQ(img.rows, 128);
+    const cv::Vec3b centre = img.at<cv::Vec3b>(64, 64);
+    EXPECT_GT(centre[1], 200);  // the crosshair's dot, green
+    EXPECT_LT(centre[0], 120);
+    // At the vertex (skin), the axial panel's top half is head below and air above in the coronal.
+    double above = 0, below = 0;
+    for (int y = 4; y < 40; ++y) above += img.at<cv::Vec3b>(y, 128 + 64)[0];
+    for (int y = 88; y < 124; ++y) below += img.at<cv::Vec3b>(y, 128 + 64)[0];
+    EXPECT_GT(below, above + 36 * 20) << "coronal: tissue below the vertex, air above";
+    r = get("/api/navigation/slices?size=96");
+    ASSERT_EQ(r.status, 200);
+    EXPECT_EQ(r.content_type, "image/jpeg");
+    EXPECT_EQ(get("/api/navigation/slices?x=abc").status, 400);
+    EXPECT_EQ(get("/api/navigation/slices?size=5").status, 400);
+    EXPECT_EQ(get("/api/navigation/slices?format=gif").status, 400);
+}
+
+}  // namespace
