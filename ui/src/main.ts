@@ -14,6 +14,7 @@ import { centreLps, gunzipIfNeeded, parseNifti, pickSurface, pixelRay, type Volu
 import type { TfJson } from "./tf_model";
 import { canWrite, KIOSK, loadSession, roleLabel, saveSession, sessionFromLogin, wsUrl, type Session } from "./session";
 import { auditRows, fmtBytes, fmtTime, holdings, patientLine, registrationRows, type AuditEntry, type CaseRecord } from "./case_detail";
+import { trackerScreen } from "./tracker_screen";
 
 // ---- shared state ------------------------------------------------------------------------
 interface CaseSummary { id: number; uid: string; title: string; state: string; created_utc: string; updated_utc: string }
@@ -396,7 +397,7 @@ interface VolumeGeometry { center_lps_mm: Vec3; radius_mm: number; dims?: number
 const pendingModelPoints = new Map<number, Vec3[]>();
 const BRAIN_PRESETS = new Set(["cortex_t1", "surface_white"]);
 
-const CASE_TABS: [string, string][] = [["view", "3D view"], ["contents", "Contents"], ["photo", "Photo & marks"], ["fused", "Fused"], ["audit", "Audit trail"]];
+const CASE_TABS: [string, string][] = [["view", "3D view"], ["contents", "Contents"], ["photo", "Photo & marks"], ["fused", "Fused"], ["tracker", "Tracker"], ["audit", "Audit trail"]];
 
 /** The case's header (back, title, state) and its sub-screens; `onCase` gets the record, `onMissing`
  *  runs when it cannot be read (after the banner). */
@@ -425,7 +426,10 @@ function caseScreen(id: number, sub: string): void {
   if (sub === "contents") caseContents(id, body, () => alive, got, missing);
   else if (sub === "audit") caseAudit(id, body, () => alive, got, missing);
   else if (sub === "photo") casePhoto(id, body, () => alive, got, missing, (f) => { const prev = leaveScreen; leaveScreen = () => { prev?.(); f(); }; });
-  else if (sub === "fused") caseFused(id, body, () => alive, got, missing, (f) => { const prev = leaveScreen; leaveScreen = () => { prev?.(); f(); }; });
+  else if (sub === "tracker") {
+    apiJson<CaseRecord>("GET", `/api/cases/${id}`).then((c) => { if (alive) got(c); }, missing);
+    trackerScreen(id, body, { alive: () => alive, writable: canWrite(session), showError, showNotice, onLeave: (f) => { const prev = leaveScreen; leaveScreen = () => { prev?.(); f(); }; } });
+  } else if (sub === "fused") caseFused(id, body, () => alive, got, missing, (f) => { const prev = leaveScreen; leaveScreen = () => { prev?.(); f(); }; });
   else caseView(id, body, () => alive, got, missing, (f) => { const prev = leaveScreen; leaveScreen = () => { prev?.(); f(); }; });
 }
 
