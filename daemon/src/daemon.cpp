@@ -20,6 +20,7 @@
 #include "cortexfuse/drivers/camera.hpp"
 #include "cortexfuse/render/renderer_factory.hpp"
 #include "case_api.hpp"
+#include "case_jobs.hpp"
 #include "cortexfuse/db/case_store.hpp"
 #include "http_server.hpp"
 #include "navigation_api.hpp"
@@ -455,12 +456,17 @@ void Daemon::Impl::register_job_kinds() {
     reg.name = "register";
     Impl* self = this;
     reg.validate = [cases, self](const nlohmann::json& p) {
-        reject_unknown(p, {"case", "case_id"}, "register");
+        reject_unknown(p, {"case", "case_id", "params"}, "register");
+        nlohmann::json overrides = nlohmann::json::object();
+        if (p.contains("params")) {
+            register_params_from_request(p["params"]);  // 400 naming the key core's reader refuses
+            overrides = p["params"];
+        }
         if (p.contains("case") == p.contains("case_id"))
             throw ApiError(400, "bad_request", "register: give exactly one of case (a case folder such as phantom/case_0000) or case_id (a case in the store)");
         if (p.contains("case")) {
             case_dir_from_name(cases, p["case"], "register case");
-            return nlohmann::json{{"case", p["case"]}};
+            return nlohmann::json{{"case", p["case"]}, {"params", overrides}};
         }
         if (!p["case_id"].is_number_integer()) throw ApiError(400, "bad_request", "register case_id: must be an integer");
         try {
@@ -470,7 +476,7 @@ void Daemon::Impl::register_job_kinds() {
         } catch (const cf::db::StoreError& e) {
             rethrow_store_error(e);
         }
-        return nlohmann::json{{"case_id", p["case_id"]}};
+        return nlohmann::json{{"case_id", p["case_id"]}, {"params", overrides}};
     };
     reg.run = [cases, results, c, self](const nlohmann::json& p, JobContext& ctx) {
         // A case of the store is exported to a work folder (a case folder, blobs verified),
@@ -499,7 +505,7 @@ void Daemon::Impl::register_job_kinds() {
                 if (remove) fs::remove_all(d, ec);
             }
         } cleanup{dir, case_id.has_value()};
-        RegistrationParams rp = RegistrationParams::defaults();
+        RegistrationParams rp = register_params_from_request(p.value("params", nlohmann::json::object()));
         auto store_run = [&](cf::db::RegistrationStatus status, const RegistrationResult* r, const std::string& error,
                              const std::string& result_json) -> std::optional<std::int64_t> {
             if (!case_id) return std::nullopt;
@@ -569,9 +575,12 @@ void Daemon::Impl::register_job_kinds() {
             }
             throw;
         } catch (const std::exception& e) {
-            if (ctx.cancelled()) throw;
+            // A cancel may surface as another error of the engine (e.g. while the case loads):
+            // the run is recorded as cancelled then, with its parameters.
+            const bool cancelled = ctx.cancelled();
             try {
-                store_run(cf::db::RegistrationStatus::failed, nullptr, e.what(), "");
+                if (cancelled) store_run(cf::db::RegistrationStatus::cancelled, nullptr, "cancelled", "");
+                else store_run(cf::db::RegistrationStatus::failed, nullptr, e.what(), "");
             } catch (const std::exception& e2) {
                 log(LogLevel::error, "jobs", std::string("could not record the failed run: ") + e2.what());
             }
@@ -579,6 +588,7 @@ void Daemon::Impl::register_job_kinds() {
         }
     };
     jobs->add_kind(reg);
+    register_case_job_kinds(*jobs, *store, work_dir);  // plan, export (case_jobs.cpp)
 }
 
 void Daemon::Impl::register_endpoints() {
@@ -681,6 +691,7 @@ void Daemon::Impl::register_endpoints() {
                       resp.headers["X-Image-Size"] = std::to_string(img.width) + "x" + std::to_string(img.height);
                       return resp;
                   }});
+    register_render_case_endpoints(registry, *render, *store, *jobs, work_dir);  // pick, fused view, job downloads
 }
 
 }  // namespace cf::daemon

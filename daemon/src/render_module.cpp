@@ -2,6 +2,9 @@
 
 #include <algorithm>
 #include <chrono>
+#include <cmath>
+#include <filesystem>
+#include <fstream>
 #include <set>
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
@@ -10,6 +13,9 @@
 
 #include "cortexfuse/core/case.hpp"
 #include "cortexfuse/core/error.hpp"
+#include "cortexfuse/core/overlay.hpp"
+#include "cortexfuse/core/roi.hpp"
+#include "cortexfuse/core/surface.hpp"
 #include "cortexfuse/core/pose.hpp"
 #include "cortexfuse/core/renderer.hpp"
 #include "cortexfuse/core/transfer_function.hpp"
@@ -19,6 +25,8 @@
 #include "cortexfuse/render/renderer_factory.hpp"
 
 namespace cf::daemon {
+
+namespace fs = std::filesystem;
 
 namespace {
 using Clock = std::chrono::steady_clock;
@@ -144,6 +152,8 @@ nlohmann::json mask_bounds_json(const LabelVolume& m) {
 }  // namespace
 
 struct RenderModule::Job {
+    enum class Mode { image, pick, fused };
+    Mode mode = Mode::image;
     int width = 0, height = 0;
     std::string preset, format, view;
     TransferFunction tf;
@@ -152,7 +162,31 @@ struct RenderModule::Job {
     bool brain_only = true;
     std::optional<Pose> pose;
     std::optional<Intrinsics> camera;
+    std::string view_key;          // the view's fields as canonical JSON (format/quality/pixel left out)
+    Eigen::Vector2d pixel{0, 0};   // pick
+    double surface_opacity = 0.5;  // fused
+    std::shared_ptr<const FusedSource> fused_src;
     std::promise<RenderedImage> result;
+    std::promise<nlohmann::json> pick_result;
+};
+
+/// What the render thread holds: the daemon's MRI and its renderers, the last view's depth (for
+/// picks of the picture the client shows), and the case volume and textured surface of the last
+/// fused view (loaded again only when their keys change).
+struct RenderModule::Scene {
+    std::optional<Volume> volume;
+    std::optional<LabelVolume> mask;
+    std::unique_ptr<Renderer> masked, whole;
+    std::string last_view_key, last_backend;
+    std::vector<float> last_depth_mm;
+    // fused
+    std::string case_volume_key;
+    std::unique_ptr<Renderer> case_masked, case_whole;
+    bool case_has_mask = false;
+    std::string surface_key, texture_key;
+    SurfaceMesh mesh;
+    TextureMapping mapping;
+    cv::Mat texture_bgra;
 };
 
 RenderModule::RenderModule(const DaemonConfig& c) : cfg_(c) {}
@@ -174,12 +208,13 @@ void RenderModule::stop() {
     if (thread_.joinable()) thread_.join();
 }
 
-RenderedImage RenderModule::render(const nlohmann::json& r) {
+std::shared_ptr<RenderModule::Job> RenderModule::parse_job(const nlohmann::json& r, const std::vector<std::string>& extra) const {
     if (!r.is_object()) throw ApiError(400, "bad_request", "render: the request must be a JSON object");
     static const std::vector<std::string> known = {"width", "height", "preset", "opacity", "brain_only", "view", "distance_mm",
                                                    "T_camera_from_world", "camera", "focal_px", "format", "quality", "sample_mm", "tf"};
     for (auto it = r.begin(); it != r.end(); ++it)
-        if (std::find(known.begin(), known.end(), it.key()) == known.end()) throw bad(it.key(), "unknown field");
+        if (std::find(known.begin(), known.end(), it.key()) == known.end() && std::find(extra.begin(), extra.end(), it.key()) == extra.end())
+            throw bad(it.key(), "unknown field");
     auto job = std::make_shared<Job>();
     job->width = get_int(r, "width", 640, 16, cfg_.render_max_width);
     job->height = get_int(r, "height", 480, 16, cfg_.render_max_height);
@@ -217,7 +252,9 @@ RenderedImage RenderModule::render(const nlohmann::json& r) {
             throw bad("view", "'" + job->view + "' is not left, right, anterior, posterior, superior or inferior");
         if (r.contains("camera")) {
             if (!r["camera"].is_object()) throw bad("camera", "must be an object (intrinsics as in case.json)");
-            Intrinsics K = parse_camera(r["camera"], "render request camera");
+            // The intrinsics themselves (documented), or wrapped as in case.json ({"camera": {...}}).
+            const nlohmann::json& cj = r["camera"];
+            Intrinsics K = parse_camera(cj.contains("camera") ? cj : nlohmann::json{{"camera", cj}}, "render request");
             K.validate("render request camera");
             if (K.width != job->width || K.height != job->height) K = K.resized(job->width, job->height);
             job->camera = K;
@@ -225,7 +262,14 @@ RenderedImage RenderModule::render(const nlohmann::json& r) {
     } catch (const InputError& e) {
         throw ApiError(400, "bad_request", e.what());
     }
-    auto fut = job->result.get_future();
+    // The view: everything that changes the picture's geometry or its surface (not its encoding).
+    nlohmann::json key = r;
+    for (const char* k : {"format", "quality", "pixel"}) key.erase(k);
+    job->view_key = key.dump();
+    return job;
+}
+
+void RenderModule::enqueue(const std::shared_ptr<Job>& job) {
     {
         std::lock_guard lk(mu_);
         if (stop_ || state_ == "stopped") throw ApiError(503, "unavailable", "render: the renderer is not running");
@@ -233,22 +277,79 @@ RenderedImage RenderModule::render(const nlohmann::json& r) {
         queue_.push_back(job);
     }
     cv_.notify_all();
+}
+
+RenderedImage RenderModule::render(const nlohmann::json& r) {
+    auto job = parse_job(r, {});
+    auto fut = job->result.get_future();
+    enqueue(job);
     return fut.get();  // rethrows what the render thread set
 }
 
+nlohmann::json RenderModule::pick(const nlohmann::json& r) {
+    if (!r.is_object()) throw ApiError(400, "bad_request", "render pick: the request must be a JSON object");
+    auto job = parse_job(r, {"pixel"});
+    job->mode = Job::Mode::pick;
+    if (!r.contains("pixel")) throw bad("pixel", "missing: give the pixel [u, v] of the view to pick");
+    const auto& p = r["pixel"];
+    if (!p.is_array() || p.size() != 2 || !p[0].is_number() || !p[1].is_number() || !std::isfinite(p[0].get<double>()) ||
+        !std::isfinite(p[1].get<double>()))
+        throw bad("pixel", "must be [u, v], two finite numbers (OpenCV pixel of the view)");
+    job->pixel = {p[0].get<double>(), p[1].get<double>()};
+    if (job->pixel.x() < -0.5 || job->pixel.x() >= job->width - 0.5 || job->pixel.y() < -0.5 || job->pixel.y() >= job->height - 0.5) {
+        std::ostringstream m;
+        m << "(" << job->pixel.x() << ", " << job->pixel.y() << ") is outside the " << job->width << "x" << job->height << " image";
+        throw bad("pixel", m.str());
+    }
+    auto fut = job->pick_result.get_future();
+    enqueue(job);
+    return fut.get();
+}
+
+RenderedImage RenderModule::fused(const nlohmann::json& r, std::shared_ptr<const FusedSource> src) {
+    auto job = parse_job(r, {"surface_opacity"});
+    job->mode = Job::Mode::fused;
+    job->surface_opacity = get_num(r, "surface_opacity", 0.5, 0.0, 1.0);
+    if (!job->pose) throw bad("T_camera_from_world", "missing (the fused view needs a pose)");
+    job->fused_src = std::move(src);
+    auto fut = job->result.get_future();
+    enqueue(job);
+    return fut.get();
+}
+
+namespace {
+/// Writes `bytes` under `dir/name` for a reader that wants a file; removed by the caller.
+fs::path stage_file(const std::string& dir, const std::string& name, const std::string& bytes) {
+    std::error_code ec;
+    fs::create_directories(dir, ec);
+    const fs::path p = fs::path(dir) / name;
+    std::ofstream o(p, std::ios::binary | std::ios::trunc);
+    o.write(bytes.data(), std::streamsize(bytes.size()));
+    o.close();
+    if (!o) throw std::runtime_error("render: cannot stage " + p.string());
+    return p;
+}
+struct RemoveDir {
+    std::string d;
+    ~RemoveDir() {
+        std::error_code ec;
+        if (!d.empty()) fs::remove_all(d, ec);
+    }
+};
+}  // namespace
+
 void RenderModule::loop() {
-    std::optional<Volume> volume;
-    std::optional<LabelVolume> mask;
+    Scene sc;
     try {
         const auto t0 = Clock::now();
-        volume = load_volume(cfg_.t1_path);
+        sc.volume = load_volume(cfg_.t1_path);
         if (!cfg_.brain_mask_path.empty()) {
-            mask = load_mask(cfg_.brain_mask_path);
-            if (!mask->geom.same_grid(volume->geom)) mask = resample_nearest(*mask, volume->geom);
+            sc.mask = load_mask(cfg_.brain_mask_path);
+            if (!sc.mask->geom.same_grid(sc.volume->geom)) sc.mask = resample_nearest(*sc.mask, sc.volume->geom);
         }
         log(LogLevel::info, "render", "volume loaded in " + std::to_string(int(ms_since(t0))) + " ms");
-        nlohmann::json info = geometry_json(volume->geom);
-        if (mask) info["brain"] = mask_bounds_json(*mask);
+        nlohmann::json info = geometry_json(sc.volume->geom);
+        if (sc.mask) info["brain"] = mask_bounds_json(*sc.mask);
         std::lock_guard lk(mu_);
         volume_info_ = std::move(info);
         state_ = "ready";
@@ -259,10 +360,9 @@ void RenderModule::loop() {
         error_ = e.what();
     }
     const RendererKind kind = parse_renderer_kind(cfg_.renderer, "renderer.kind");
-    std::unique_ptr<Renderer> masked, whole;
-    auto make = [&](const LabelVolume* m) {
+    auto make = [&](const Volume& v, const LabelVolume* m) {
         std::ostringstream why;
-        auto r = make_renderer(kind, *volume, preset_transfer_function("cortex_t1"), m, &why);
+        auto r = make_renderer(kind, v, preset_transfer_function("cortex_t1"), m, &why);
         std::string reason = why.str();
         while (!reason.empty() && (reason.back() == '\n' || reason.back() == '\r')) reason.pop_back();
         std::lock_guard lk(mu_);
@@ -271,10 +371,10 @@ void RenderModule::loop() {
         else if (backend_reason_.empty()) backend_reason_ = std::string("renderer.kind ") + cfg_.renderer;
         return r;
     };
-    if (volume) {
+    if (sc.volume) {
         // The default view's renderer now, so the status says at once which backend runs and why.
         try {
-            masked = make(mask ? &*mask : nullptr);
+            sc.masked = make(*sc.volume, sc.mask ? &*sc.mask : nullptr);
         } catch (const std::exception& e) {
             log(LogLevel::error, "render", std::string("no renderer: ") + e.what());
             std::lock_guard lk(mu_);
@@ -282,13 +382,55 @@ void RenderModule::loop() {
             error_ = e.what();
         }
     }
+    // The case's volume and textured surface of a fused view (cached by their keys).
+    auto prepare_fused = [&](const FusedSource& src) {
+        if (sc.case_volume_key != src.volume_key + "/" + src.mask_key) {
+            sc.case_masked.reset();
+            sc.case_whole.reset();
+            sc.case_volume_key.clear();
+            RemoveDir rm{src.scratch_dir};
+            const Volume v = load_volume(stage_file(src.scratch_dir, src.volume_name, src.volume_bytes()));
+            std::optional<LabelVolume> m;
+            if (src.mask_bytes) {
+                m = load_mask(stage_file(src.scratch_dir, src.mask_name, src.mask_bytes()));
+                if (!m->geom.same_grid(v.geom)) m = resample_nearest(*m, v.geom);
+            }
+            sc.case_whole = make(v, nullptr);
+            if (m) sc.case_masked = make(v, &*m);
+            sc.case_has_mask = m.has_value();
+            sc.case_volume_key = src.volume_key + "/" + src.mask_key;
+        }
+        if (sc.surface_key != src.surface_key) {
+            sc.surface_key.clear();
+            sc.texture_key.clear();
+            RemoveDir rm{src.scratch_dir};
+            sc.mesh = load_mesh(stage_file(src.scratch_dir, "brain_surface.ply", src.surface_ply_bytes()));
+            sc.surface_key = src.surface_key;
+        }
+        if (sc.texture_key != src.texture_key) {
+            sc.texture_key.clear();
+            const std::string bytes = src.photo_bytes();
+            const cv::Mat photo = cv::imdecode(cv::Mat(1, int(bytes.size()), CV_8U, const_cast<char*>(bytes.data())), cv::IMREAD_COLOR);
+            if (photo.empty()) throw ApiError(422, "unprocessable", "fused: the case's photo does not decode");
+            Intrinsics K = parse_camera(nlohmann::json{{"camera", src.photo_intrinsics}}, "fused photo");
+            K.validate("fused photo camera");
+            const cv::Mat alpha = src.roi.is_null() ? cv::Mat() : roi_mask(parse_roi(src.roi, "fused roi"), photo.cols, photo.rows);
+            sc.mapping = map_texture(sc.mesh, K, src.T_registered, alpha);
+            sc.texture_bgra = texture_rgba(photo, alpha);
+            sc.texture_key = src.texture_key;
+        }
+    };
     for (;;) {
         std::shared_ptr<Job> job;
         {
             std::unique_lock lk(mu_);
             cv_.wait(lk, [&] { return stop_ || !queue_.empty(); });
             if (stop_) {
-                for (auto& j : queue_) j->result.set_exception(std::make_exception_ptr(ApiError(503, "unavailable", "render: the daemon is stopping")));
+                for (auto& j : queue_) {
+                    auto e = std::make_exception_ptr(ApiError(503, "unavailable", "render: the daemon is stopping"));
+                    if (j->mode == Job::Mode::pick) j->pick_result.set_exception(e);
+                    else j->result.set_exception(e);
+                }
                 queue_.clear();
                 break;
             }
@@ -296,13 +438,24 @@ void RenderModule::loop() {
             queue_.pop_front();
         }
         try {
-            if (!volume) throw ApiError(503, "unavailable", "render: the volume could not be loaded: " + error_);
-            const bool use_mask = job->brain_only || !mask.has_value();  // 'masked' is the maskless one without a mask
-            auto& r = use_mask ? masked : whole;
-            if (!r) r = make(use_mask && mask ? &*mask : nullptr);
+            if (!sc.volume) throw ApiError(503, "unavailable", "render: the volume could not be loaded: " + error_);
+            Renderer* r = nullptr;
+            const Volume* vol = &*sc.volume;
+            if (job->mode == Job::Mode::fused) {
+                try {
+                    prepare_fused(*job->fused_src);
+                } catch (const InputError& e) {
+                    throw ApiError(422, "unprocessable", std::string("fused: ") + e.what());
+                }
+                r = (job->brain_only && sc.case_masked) ? sc.case_masked.get() : sc.case_whole.get();
+            } else {
+                const bool use_mask = job->brain_only || !sc.mask.has_value();  // 'masked' is the maskless one without a mask
+                auto& rr = use_mask ? sc.masked : sc.whole;
+                if (!rr) rr = make(*sc.volume, use_mask && sc.mask ? &*sc.mask : nullptr);
+                r = rr.get();
+            }
             TransferFunction tf = job->tf;
             for (auto& p : tf.opacity) p[1] *= job->opacity;
-            r->set_transfer_function(tf);
             Intrinsics K;
             if (job->camera) K = *job->camera;
             else {
@@ -312,18 +465,55 @@ void RenderModule::loop() {
                 K.cx = (job->width - 1) * 0.5;
                 K.cy = (job->height - 1) * 0.5;
             }
-            const Pose T = job->pose ? *job->pose : standard_view(job->view, volume->geom.center_world_mm(), job->distance_mm);
+            const Pose T = job->pose ? *job->pose : standard_view(job->view, vol->geom.center_world_mm(), job->distance_mm);
             RenderOptions ro;
             ro.sample_distance_mm = job->sample_mm;
-            ro.want_depth = false;
+            ro.want_depth = true;  // kept for picks of this view (the CPU caster has it anyway; GL reads one more buffer)
+            if (job->mode == Job::Mode::pick) {
+                // The pixel whose centre the ray goes through (the depth belongs to pixel centres).
+                const int u = int(std::lround(job->pixel.x())), v = int(std::lround(job->pixel.y()));
+                const bool reuse = sc.last_view_key == job->view_key && sc.last_depth_mm.size() == std::size_t(K.width) * K.height;
+                if (!reuse) {
+                    r->set_transfer_function(tf);
+                    ro.want_rgb = false;
+                    RenderImage img;
+                    r->render(K, T, ro, img);
+                    sc.last_depth_mm = std::move(img.depth_mm);
+                    sc.last_view_key = job->view_key;
+                    sc.last_backend = r->name();
+                }
+                const float z_mm = sc.last_depth_mm[std::size_t(v) * K.width + u];
+                if (!(z_mm > 0)) {
+                    std::ostringstream m;
+                    m << "render pick pixel: no surface at (" << u << ", " << v << "): the ray misses the rendered volume";
+                    throw ApiError(422, "no_surface", m.str());
+                }
+                const Eigen::Vector3d p_cam = backproject(K, Eigen::Vector2d(u, v), z_mm);
+                const Eigen::Vector3d p_world = (T.inverse() * p_cam.homogeneous()).head<3>();
+                job->pick_result.set_value({{"pixel", {u, v}},
+                                            {"p_world_mm", {p_world.x(), p_world.y(), p_world.z()}},
+                                            {"depth_mm", z_mm},
+                                            {"frame", "LPS mm"},
+                                            {"reused_render", reuse},
+                                            {"renderer", sc.last_backend}});
+                continue;
+            }
+            r->set_transfer_function(tf);
             RenderImage img;
+            cv::Mat bgr;
             const auto t0 = Clock::now();
-            r->render(K, T, ro, img);
+            if (job->mode == Job::Mode::fused) {
+                bgr = render_fused(*r, sc.mesh, sc.mapping, sc.texture_bgra, K, T, job->surface_opacity, 3.0, ro);
+            } else {
+                r->render(K, T, ro, img);
+                sc.last_depth_mm = std::move(img.depth_mm);
+                sc.last_view_key = job->view_key;
+                sc.last_backend = r->name();
+            }
             RenderedImage out;
             out.render_ms = ms_since(t0);
             const auto t1 = Clock::now();
-            cv::Mat bgr;
-            cv::cvtColor(cv::Mat(K.height, K.width, CV_8UC3, img.rgb.data()), bgr, cv::COLOR_RGB2BGR);
+            if (job->mode != Job::Mode::fused) cv::cvtColor(cv::Mat(K.height, K.width, CV_8UC3, img.rgb.data()), bgr, cv::COLOR_RGB2BGR);
             std::vector<uchar> buf;
             if (job->format == "png") {
                 cv::imencode(".png", bgr, buf);
@@ -348,7 +538,8 @@ void RenderModule::loop() {
                 std::lock_guard lk(mu_);
                 ++failures_;
             }
-            job->result.set_exception(std::current_exception());
+            if (job->mode == Job::Mode::pick) job->pick_result.set_exception(std::current_exception());
+            else job->result.set_exception(std::current_exception());
         }
     }
     std::lock_guard lk(mu_);

@@ -8,12 +8,15 @@
 // from any thread (render() blocks the caller until the image is ready).
 #include <condition_variable>
 #include <deque>
+#include <functional>
 #include <future>
 #include <mutex>
 #include <nlohmann/json.hpp>
 #include <string>
 #include <thread>
+#include <vector>
 
+#include "cortexfuse/core/camera.hpp"
 #include "cortexfuse/daemon/config.hpp"
 
 namespace cf::daemon {
@@ -24,6 +27,19 @@ struct RenderedImage {
     int width = 0, height = 0;
     double render_ms = 0, encode_ms = 0;
     std::string backend;
+};
+
+/// The case's textured brain surface for a fused view (POST /api/cases/{id}/fused), gathered
+/// from the case store by the caller; the render thread loads and caches what it names.
+/// `*_bytes` read the stored files (called on the render thread only when the key is not cached).
+struct FusedSource {
+    std::string volume_key, mask_key, surface_key, texture_key;  ///< sha256 of each; texture: photo+roi+pose
+    std::string volume_name, mask_name;                           ///< file names (the reader picks by extension)
+    std::function<std::string()> volume_bytes, mask_bytes, surface_ply_bytes, photo_bytes;  ///< mask_bytes may be empty
+    nlohmann::json photo_intrinsics;  ///< case.json camera of the photo
+    nlohmann::json roi;               ///< roi.json, or null (then the whole visible surface is textured)
+    Pose T_registered;                ///< the registration's T_camera_from_world (texture mapping)
+    std::string scratch_dir;          ///< where volume files are staged for the readers (removed after)
 };
 
 class RenderModule {
@@ -41,6 +57,17 @@ public:
     /// (4x4 rows, LPS mm -> camera mm); camera (intrinsics JSON as in case.json) or focal_px;
     /// format "jpeg" | "png"; quality (10..100).
     RenderedImage render(const nlohmann::json& request);
+    /// The world point under a pixel of the view `request` describes (the same fields as
+    /// render(), plus `pixel`: [u, v], OpenCV pixel of that view): the camera-frame depth of the
+    /// first opaque hit at the pixel (the renderer's depth output; the last render's when its
+    /// view is the same), back-projected through the view's camera. Answers {pixel, p_world_mm,
+    /// depth_mm, reused_render, renderer}. ApiError 400 for a bad request or a pixel outside the
+    /// image, 422 when the ray hits no surface, 503 without a volume.
+    nlohmann::json pick(const nlohmann::json& request);
+    /// The case's volume (src) rendered like render() with its photo-textured brain surface
+    /// blended over it at `surface_opacity` (request field, 0..1, default 0.5) times the ROI's
+    /// alpha, composited by depth (core's render_fused). ApiError 400/422/503 as render().
+    RenderedImage fused(const nlohmann::json& request, std::shared_ptr<const FusedSource> src);
     /// The loaded MRI's geometry for clients that place their own camera: centre (the standard
     /// views' target) and box in LPS mm, dims, spacing, and the brain mask's box (`brain`, null
     /// without a mask). ApiError 503 while loading or after a failed load.
@@ -50,6 +77,9 @@ public:
 
 private:
     struct Job;
+    struct Scene;
+    std::shared_ptr<Job> parse_job(const nlohmann::json& request, const std::vector<std::string>& extra_fields) const;
+    void enqueue(const std::shared_ptr<Job>& job);
     void loop();
     DaemonConfig cfg_;
     std::thread thread_;
