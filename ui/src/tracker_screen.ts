@@ -55,8 +55,8 @@ export function trackerScreen(caseId: number, body: HTMLElement, deps: TrackerSc
   const right = h("section", { class: "panel nav-reg" },
     h("h2", {}, "Patient registration"), readOnly, suggest,
     h("p", { class: "muted" }, "Touch each fiducial with the pointer tip, hold still, press Record."),
-    list, record, simTouch, msg, fre,
-    h("div", { class: "nav-row" }, accept, redo), accepted);
+    record, h("div", { class: "nav-row" }, simTouch), msg, fre,
+    h("div", { class: "nav-row" }, accept, redo), accepted, list);
   body.replaceChildren(h("div", { class: "nav-screen", "data-testid": "tracker-screen" }, left, right));
 
   const say = (text: string, bad = true) => {
@@ -92,7 +92,10 @@ export function trackerScreen(caseId: number, body: HTMLElement, deps: TrackerSc
       fre.className = `nav-fre${regError ? " bad" : ""}`;
       delete fre.dataset.fre;
     }
-    accept.disabled = !deps.writable || !reg || busy;
+    const sameAsAccepted = !!reg && !!nav.accepted && nav.accepted.image_fiducials_revision === reg.image_fiducials_revision &&
+      nav.accepted.patient_fiducials_revision === reg.patient_fiducials_revision;
+    accept.disabled = !deps.writable || !reg || busy || sameAsAccepted;
+    accept.textContent = sameAsAccepted ? "Accepted" : "Accept registration";
     redo.disabled = !deps.writable || !nav.patient_fiducials.fiducials.length || busy;
     const a = nav.accepted;
     accepted.textContent = a
