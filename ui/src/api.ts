@@ -102,6 +102,11 @@ export async function apiBlob(path: string, fetchImpl: FetchLike = fetch, method
   return (await send(fetchImpl, method, path)).blob();
 }
 
+/** POST a JSON body and answer the image (e.g. POST /api/cases/N/fused). */
+export async function apiPostBlob(path: string, body: unknown, fetchImpl: FetchLike = fetch): Promise<Blob> {
+  return (await send(fetchImpl, "POST", path, body)).blob();
+}
+
 export interface RenderedImage {
   blob: Blob;
   width: number;

@@ -1,7 +1,7 @@
 // CortexFuse kiosk UI: status bar, login (remote review), cases, case view with a rendered
 // volume, the case's contents and audit trail, jobs.
 import "./style.css";
-import { ApiError, UserMessage, apiBlob, apiJson, apiRender, apiUpload, auth, plainMessage, type RenderedImage } from "./api";
+import { ApiError, UserMessage, apiBlob, apiJson, apiPostBlob, apiRender, apiUpload, auth, plainMessage, type RenderedImage } from "./api";
 import { cardinalPath, clampPx, defaultCamera, imageKind, insertRoiPoint, nearest, projectPoint, type Px } from "./photo_marks";
 import { PushChannel, type PushState } from "./push";
 import { fitFocalPx, RenderScheduler, renderSizes } from "./render_scheduler";
@@ -10,7 +10,8 @@ import { h, table } from "./dom";
 import { LinkMonitor, restartNote, TrackerMonitor } from "./link";
 import { dragOrbit, NAMED_VIEWS, namedViewOf, orbitPose, zoomOrbit, type Orbit, type Vec3 } from "./orbit";
 import { TfEditor } from "./tf_editor";
-import { centreLps, gunzipIfNeeded, parseNifti, pickSurface, pixelRay, type Volume as NiftiVolume } from "./nifti";
+import { centreLps, gunzipIfNeeded, parseNifti, type Volume as NiftiVolume } from "./nifti";
+import { orbitCamera } from "./fused_pose";
 import type { TfJson } from "./tf_model";
 import { canWrite, KIOSK, loadSession, roleLabel, saveSession, sessionFromLogin, wsUrl, type Session } from "./session";
 import { auditRows, fmtBytes, fmtTime, holdings, patientLine, registrationRows, type AuditEntry, type CaseRecord } from "./case_detail";
@@ -816,7 +817,63 @@ function caseFused(id: number, body: HTMLElement, alive: Alive, got: (c: CaseRec
       } catch (e) { showError(e); }
     };
     presetBox.append(...["cortex_t1", "surface_white"].map((p) => h("button", { class: "btn", "data-value": p, onclick: () => renderModel(p) }, p.replace(/_/g, " "))));
-    renderModel("cortex_t1");
+    // With a plan's brain surface: the photo on the model (POST /api/cases/N/fused: the textured
+    // surface over the volume rendering, the slider its opacity), turned by dragging, and
+    // "Camera view" back to the registered camera (GET /api/cases/N/fused/camera).
+    if (!(c.results ?? []).some((r) => r.kind === "plan_brain_surface")) {
+      info.append(h("span", { "data-testid": "fused-no-surface" }, " No brain surface yet (run planning): the model is shown over the photo."));
+      renderModel("cortex_t1");
+      return;
+    }
+    const T0 = reg.final_pose!.T_camera_from_world;
+    let T = T0, preset = "cortex_t1", seq = 0;
+    const snapBtn = h("button", { class: "btn", "data-testid": "fused-camera-view" }, "Camera view");
+    photoImg.hidden = true;
+    modelImg.style.opacity = "1";
+    stage.style.touchAction = "none";
+    const renderTextured = async () => {
+      presetBox.querySelectorAll("button").forEach((b) => b.classList.toggle("active", b.dataset.value === preset));
+      const mine = ++seq;
+      try {
+        const blob = await apiPostBlob(`/api/cases/${id}/fused`, { width: w, height: hh, preset, camera: photo.intrinsics,
+                                                                T_camera_from_world: T, surface_opacity: Number(opacity.value) / 100 });
+        if (!alive() || mine !== seq) return;
+        const u = URL.createObjectURL(blob); urls.push(u); modelImg.src = u;
+        modelImg.dataset.full = "true";
+        modelImg.dataset.preset = preset;
+        modelImg.dataset.textured = "true";
+        stage.dataset.atCamera = String(T === T0);
+      } catch (e) { showError(e); }
+    };
+    opacity.removeEventListener("input", setOpacity);
+    opacity.addEventListener("input", () => { opacityOut.textContent = `${opacity.value} %`; });
+    opacity.addEventListener("change", () => { void renderTextured(); });
+    opacityOut.textContent = `${opacity.value} %`;
+    presetBox.replaceChildren(...["cortex_t1", "surface_white"].map((p) => h("button", { class: "btn", "data-value": p, onclick: () => { preset = p; void renderTextured(); } }, p.replace(/_/g, " "))));
+    snapBtn.addEventListener("click", async () => {
+      try {
+        const cam = await apiJson<{ T_camera_from_world: number[][] }>("GET", `/api/cases/${id}/fused/camera?registration_id=${reg.id}`);
+        T = cam.T_camera_from_world;
+        await renderTextured();
+        stage.dataset.atCamera = "true";
+      } catch (e) { showError(e); }
+    });
+    presetBox.after(h("h2", {}, "View"), h("div", { class: "choices" }, snapBtn),
+                    h("p", { class: "muted" }, "Drag on the picture to turn the model; Camera view goes back to the photo's camera."));
+    // Drag: 0.3 degrees a pixel about the point the camera looks at (at the registered distance).
+    let drag: { x: number; y: number; T: number[][] } | null = null;
+    const pivot = Math.abs(T0[2][3]) > 1 ? Math.hypot(T0[0][3], T0[1][3], T0[2][3]) : 300;
+    stage.addEventListener("pointerdown", (e) => { drag = { x: e.clientX, y: e.clientY, T }; stage.setPointerCapture(e.pointerId); });
+    stage.addEventListener("pointerup", (e) => {
+      if (!drag) return;
+      const dx = e.clientX - drag.x, dy = e.clientY - drag.y;
+      const from = drag.T;
+      drag = null;
+      if (Math.hypot(dx, dy) < 8) return;
+      T = orbitCamera(from, -0.3 * dx, 0.3 * dy, pivot);
+      void renderTextured();
+    });
+    void renderTextured();
   }, missing);
 }
 
@@ -884,15 +941,17 @@ function caseView(id: number, body: HTMLElement, aliveFn: Alive, got: (c: CaseRe
   const target = (view: View): Vec3 => (view.brainOnly && geo?.brain ? geo.brain.center_lps_mm : geo!.center_lps_mm);
 
   let url = "";
+  // The request of a view (POST /api/render; the pick sends the same fields, so it picks what is shown).
+  const viewRequest = (view: View, size: { width: number; height: number }) => {
+    const req: Record<string, unknown> = { width: size.width, height: size.height, opacity: view.opacity,
+                                           focal_px: fitFocalPx(size.width, size.height, 450, 95) };
+    if (view.tf) { req.tf = view.tf; req.brain_only = view.brainOnly; } else req.preset = view.preset;
+    if (geo) req.T_camera_from_world = orbitPose(view.orbit, target(view));
+    else { req.view = namedViewOf(view.orbit) ?? "left"; req.distance_mm = view.orbit.distanceMm; }
+    return req;
+  };
   const sched = new RenderScheduler<View>({
-    render: (view, size) => {
-      const req: Record<string, unknown> = { width: size.width, height: size.height, opacity: view.opacity,
-                                             focal_px: fitFocalPx(size.width, size.height, 450, 95) };
-      if (view.tf) { req.tf = view.tf; req.brain_only = view.brainOnly; } else req.preset = view.preset;
-      if (geo) req.T_camera_from_world = orbitPose(view.orbit, target(view));
-      else { req.view = namedViewOf(view.orbit) ?? "left"; req.distance_mm = view.orbit.distanceMm; }
-      return apiRender(req);
-    },
+    render: (view, size) => apiRender(viewRequest(view, size)),
     onImage: (r, _view, size, full) => {
       if (!aliveFn()) return;
       const ri = r as RenderedImage;
@@ -1026,14 +1085,24 @@ function caseView(id: number, body: HTMLElement, aliveFn: Alive, got: (c: CaseRe
       drawPickMarks();
     } catch (e) { pickNote.hidden = true; showError(e); }
   });
-  const pickAt = (x: number, y: number) => {
+  // The daemon picks on the rendering itself (POST /api/render/pick: the renderer's depth at that
+  // pixel of the very view shown), so the point lands on the surface the transfer function shows.
+  const pickAt = async (x: number, y: number) => {
     const cam = shownCamera();
-    if (!cam || !mask) return;
+    if (!cam || !mask || !shownView) return;
     const b = imgBox(cam.size);
     const u = (x - b.x0) / b.k - 0.5, w = (y - b.y0) / b.k - 0.5;
-    const { origin, dir } = pixelRay(cam.T, cam.K, u, w);
-    const hit = pickSurface(mask, origin, dir, v.orbit.distanceMm + 400);
-    if (!hit) { showError(new UserMessage("That tap missed the brain: tap on the model itself.")); return; }
+    if (u < -0.5 || w < -0.5 || u >= cam.size.width - 0.5 || w >= cam.size.height - 0.5) return;
+    let hit: Vec3;
+    try {
+      const r = await apiJson<{ p_world_mm: Vec3 }>("POST", "/api/render/pick", { ...viewRequest(shownView.view, shownView.size), pixel: [u, w] });
+      hit = r.p_world_mm;
+    } catch (e) {
+      if (e instanceof ApiError && e.status === 422) showError(new UserMessage("That tap missed the brain: tap on the model itself."));
+      else showError(e);
+      return;
+    }
+    if (!aliveFn()) return;
     pendingModelPoints.set(id, [...(pendingModelPoints.get(id) ?? []), hit]);
     stage.dataset.picked = String(pendingModelPoints.get(id)!.length);
     showNotice(`Model point picked at (${hit.map((q) => q.toFixed(1)).join(", ")}) mm. Now tap its twin on the photo (Photo & marks).`);
