@@ -6,6 +6,7 @@ import { createRequire } from "node:module";
 import fs from "node:fs";
 import os from "node:os";
 import path from "node:path";
+import { trackerE2E } from "./e2e_tracker.mjs";
 
 const [daemonBin, uiDir, artDir] = process.argv.slice(2).map((p) => path.resolve(p));
 const CHROMIUM = process.env.CF_CHROMIUM ?? "/usr/bin/chromium";
@@ -127,6 +128,11 @@ try {
   await shot("02-case-view");
   await checkTargets("case view");
   step(`rendered ${size1}`);
+
+  // The Tracker screen: patient registration with the simulated pointer (e2e_tracker.mjs).
+  await trackerE2E({ page, base, step, expect, shot, checkTargets });
+  await page.goto(`${base}/#/case/${createdId}`);
+  await page.waitForFunction(() => document.querySelector('[data-testid="render-image"]')?.dataset.full === "true", null, { timeout: 30000 });
 
   // Preset and a drag: the head turns freely about the volume's centre (GET /api/render/volume),
   // preview first then full.

@@ -1,0 +1,65 @@
+// The Tracker screen in the end-to-end test (called by e2e.mjs): a case of its own, the tools
+// live, skin fiducials suggested on the MRI, four touched with the simulated pointer and recorded
+// by touch, a recording refused while the pointer moves (the daemon's words on the screen), the
+// FRE shown, the registration accepted, the pointer tip on the slices. Screenshots
+// tracker-01-fiducials.png and tracker-02-registered.png.
+
+/** page: a playwright page on the daemon at base (the kiosk: every access). */
+export async function trackerE2E({ page, base, step, expect, shot, checkTargets }) {
+  const api = (method, p, body) => page.evaluate(async ([m, u, b]) => {
+    const r = await fetch(u, { method: m, headers: { "Content-Type": "application/json" }, body: b === null ? undefined : JSON.stringify(b) });
+    return { status: r.status, j: await r.json().catch(() => null) };
+  }, [method, p, body ?? null]);
+  const c = await api("POST", "/api/cases", { title: "E2E tracker case" });
+  expect(c.status === 201, `tracker case created (${c.status})`);
+  const id = c.j.id;
+  await page.goto(`${base}/#/case/${id}/tracker`);
+  await page.getByTestId("tracker-screen").waitFor({ timeout: 10000 });
+  await page.locator('[data-testid="tool-pointer"][data-level="ok"]').waitFor({ timeout: 20000 });
+  await page.locator('[data-testid="tool-reference"][data-level="ok"]').waitFor({ timeout: 5000 });
+  await page.getByTestId("tracker-rate").filter({ hasText: /[1-9]\d* Hz/ }).waitFor({ timeout: 10000 });
+  step(`tracker screen: ${await page.getByTestId("tool-pointer").textContent()}; ${await page.getByTestId("tracker-rate").textContent()}`);
+
+  await page.getByTestId("suggest-btn").tap();
+  await page.locator('[data-testid^="fid-row-"]').nth(5).waitFor({ timeout: 15000 });
+  const labels = await page.locator('[data-testid^="fid-row-"]').evaluateAll((els) => els.map((e) => e.dataset.testid.slice("fid-row-".length)));
+  expect(labels.length === 6, `six suggested fiducials (${labels.join(", ")})`);
+  // Before any registration the slices show the fiducial to touch.
+  await page.waitForFunction(() => document.querySelector('[data-testid="tracker-slices"]')?.naturalWidth === 720, null, { timeout: 15000 });
+  await shot("tracker-01-fiducials");
+
+  const recordNext = async (label) => {
+    await page.getByTestId("sim-touch-btn").tap();
+    await page.getByTestId("nav-msg").filter({ hasText: "rests on" }).waitFor({ timeout: 5000 });
+    await page.waitForTimeout(700); // a whole 0.3 s window of frames with the pointer still
+    await page.getByTestId("record-btn").tap();
+    await page.locator(`[data-testid="fid-row-${label}"][data-recorded="true"]`).waitFor({ timeout: 10000 });
+  };
+  for (const label of labels.slice(0, 3)) await recordNext(label);
+
+  // Bad input: the pointer moving while Record is pressed is refused in plain words.
+  const freed = await api("POST", "/api/tracker/sim/pointer", { free: true });
+  expect(freed.status === 200, "simulated pointer freed");
+  await page.waitForTimeout(700);
+  await page.getByTestId("record-btn").tap();
+  const moved = page.getByTestId("nav-msg").filter({ hasText: "moved" });
+  await moved.waitFor({ timeout: 10000 });
+  step(`record refused while moving: ${await moved.textContent()}`);
+  await recordNext(labels[3]);
+
+  await page.waitForFunction(() => Number(document.querySelector('[data-testid="fre-line"]')?.dataset.fre) >= 0, null, { timeout: 10000 });
+  const fre = Number(await page.getByTestId("fre-line").getAttribute("data-fre"));
+  expect(fre < 0.5, `FRE within the simulator's noise (${fre} mm)`);
+  const recordBox = await page.getByTestId("record-btn").boundingBox();
+  expect(recordBox && recordBox.height >= 64, `the Record button is big (${recordBox?.height} px)`);
+  await page.getByTestId("accept-btn").tap();
+  await page.waitForFunction(() => Number(document.querySelector('[data-testid="accepted-line"]')?.dataset.revision) > 0, null, { timeout: 10000 });
+  await page.getByTestId("tracker-slice-caption").filter({ hasText: "accepted registration" }).waitFor({ timeout: 10000 });
+  step(`registration accepted: ${await page.getByTestId("fre-line").textContent()}`);
+  const nav = await api("GET", `/api/cases/${id}/navigation`);
+  expect(nav.j?.accepted?.fre_mm === fre, "the accepted registration is the one shown");
+  expect(await page.getByTestId("accept-btn").isDisabled(), "accepting the same registration twice is not offered");
+  await checkTargets("tracker");
+  await shot("tracker-02-registered");
+  return id;
+}
