@@ -10,6 +10,7 @@
 #include <opencv2/imgproc.hpp>
 #include <optional>
 #include <set>
+#include <thread>
 
 #include "case_api.hpp"
 #include "cortexfuse/core/error.hpp"
@@ -386,22 +387,66 @@ json suggested_fiducials(const cf::Volume& v, float lo, float hi) {
     return out;
 }
 
+/// The pointer tip in use (tip_pointer_mm): NavigationOptions' until a pivot calibration is
+/// applied (POST /api/navigation/pivot {apply: true}); kept in memory until the daemon stops.
+class PointerTip {
+public:
+    explicit PointerTip(const Eigen::Vector3d& t) : tip_(t) {}
+    Eigen::Vector3d get() const {
+        std::lock_guard lk(mu_);
+        return tip_;
+    }
+    std::string source() const {
+        std::lock_guard lk(mu_);
+        return source_;
+    }
+    void set(const Eigen::Vector3d& t, const std::string& source) {
+        std::lock_guard lk(mu_);
+        tip_ = t;
+        source_ = source;
+    }
+
+private:
+    mutable std::mutex mu_;
+    Eigen::Vector3d tip_;
+    std::string source_ = "default (the pointer tool's origin)";
+};
+
+Eigen::Matrix4d mat4(const json& v, const std::string& what) {
+    if (!v.is_array() || v.size() != 4) throw bad(what, "must be 4 rows of 4 numbers");
+    Eigen::Matrix4d T;
+    for (int r = 0; r < 4; ++r) {
+        if (!v[r].is_array() || v[r].size() != 4) throw bad(what, "must be 4 rows of 4 numbers");
+        for (int c = 0; c < 4; ++c) {
+            if (!v[r][c].is_number()) throw bad(what, "must be 4 rows of 4 numbers");
+            T(r, c) = v[r][c].get<double>();
+        }
+    }
+    const Eigen::Matrix3d R = T.topLeftCorner<3, 3>();
+    if (!T.allFinite() || (R.transpose() * R - Eigen::Matrix3d::Identity()).norm() > 1e-6 || R.determinant() < 0 ||
+        (T.row(3) - Eigen::RowVector4d(0, 0, 0, 1)).norm() > 1e-9)
+        throw bad(what, "must be a rigid transform (orthonormal rotation, last row 0 0 0 1)");
+    return T;
+}
+
 }  // namespace
 
 void register_navigation_endpoints(EndpointRegistry& reg, CaseStore& store, TrackerModule& tracker, const NavigationOptions& options) {
     CaseStore* st = &store;
     TrackerModule* tr = &tracker;
-    const Eigen::Vector3d tip(options.tip_pointer_mm[0], options.tip_pointer_mm[1], options.tip_pointer_mm[2]);
+    auto tip_state = std::make_shared<PointerTip>(Eigen::Vector3d(options.tip_pointer_mm[0], options.tip_pointer_mm[1], options.tip_pointer_mm[2]));
     auto slices = std::make_shared<SliceVolume>(options.t1_path);
 
     // ---- live pointer, slices, suggestions, simulator ----
     reg.add({"GET", "/api/navigation/pointer", "navigation.pointer", Access::read,
              "The newest tracker frame's tools and the pointer tip in the reference frame (p_reference_mm) and the tracker's",
-             [tr, tip](const Request&) {
-                 json j{{"enabled", tr->enabled()}, {"tip_pointer_mm", vec_json(tip)}, {"p_reference_mm", nullptr}, {"p_tracker_mm", nullptr}};
-                 const auto st = tr->status();
-                 j["state"] = cf::tracker::state_name(st.state);
-                 j["frame_rate_hz"] = st.frame_rate_hz;
+             [tr, tip_in_use = tip_state](const Request&) {
+                 const Eigen::Vector3d tip = tip_in_use->get();
+                 json j{{"enabled", tr->enabled()}, {"tip_pointer_mm", vec_json(tip)}, {"tip_source", tip_in_use->source()},
+                        {"p_reference_mm", nullptr}, {"p_tracker_mm", nullptr}};
+                 const auto status = tr->status();
+                 j["state"] = cf::tracker::state_name(status.state);
+                 j["frame_rate_hz"] = status.frame_rate_hz;
                  const auto frames = tr->recent_frames(std::int64_t(1e9));
                  if (frames.empty()) {
                      j["frame"] = nullptr;
@@ -458,16 +503,18 @@ void register_navigation_endpoints(EndpointRegistry& reg, CaseStore& store, Trac
                  return ok({{"fiducials", suggested_fiducials(*vol, lo, hi)}});
              }});
     reg.add({"POST", "/api/tracker/sim/pointer", "tracker.sim_pointer", Access::write,
-             "Simulator only: place a tool: {tool?: pointer|reference, touch_image_mm | touch_reference_mm | hidden: true | free: true}",
-             [tr, tip](const Request& r) {
-                 const json b = body_object(r, "sim pointer", {"tool", "touch_image_mm", "touch_reference_mm", "hidden", "free"});
+             "Simulator only: place a tool: {tool?: pointer|reference, touch_image_mm | touch_reference_mm | T_reference_from_pointer | hidden: true | free: true}",
+             [tr, tip_in_use = tip_state](const Request& r) {
+                 const json b = body_object(r, "sim pointer", {"tool", "touch_image_mm", "touch_reference_mm", "T_reference_from_pointer", "hidden", "free"});
+                 const Eigen::Vector3d tip = tip_in_use->get();
                  auto* sim = tr->simulator();
                  if (!sim) throw conflict("tracker.source", "no simulator runs (tracker.source is not sim, or the tracker is disabled)");
                  const std::string tool = text(b, "tool", "pointer", "sim pointer");
                  if (tool != "pointer" && tool != "reference") throw bad("sim pointer tool", "'" + tool.substr(0, 40) + "' must be pointer or reference");
                  const std::string part = tool == "pointer" ? "CF-POINTER" : "CF-REFERENCE";
-                 const int modes = int(b.contains("touch_image_mm")) + int(b.contains("touch_reference_mm")) + int(b.contains("hidden")) + int(b.contains("free"));
-                 if (modes != 1) throw bad("sim pointer", "give exactly one of touch_image_mm, touch_reference_mm, hidden, free");
+                 const int modes = int(b.contains("touch_image_mm")) + int(b.contains("touch_reference_mm")) + int(b.contains("T_reference_from_pointer")) +
+                                   int(b.contains("hidden")) + int(b.contains("free"));
+                 if (modes != 1) throw bad("sim pointer", "give exactly one of touch_image_mm, touch_reference_mm, T_reference_from_pointer, hidden, free");
                  const Eigen::Matrix4d T_image_from_reference = sim_T_image_from_reference();
                  json out{{"tool", tool}, {"T_image_from_reference_truth", mat_json(T_image_from_reference)}};
                  if (b.contains("hidden") || b.contains("free")) {
@@ -479,7 +526,11 @@ void register_navigation_endpoints(EndpointRegistry& reg, CaseStore& store, Trac
                  }
                  if (tool != "pointer") throw bad("sim pointer tool", "only the pointer touches points");
                  Eigen::Vector3d p_reference;
-                 if (b.contains("touch_image_mm")) {
+                 std::optional<Eigen::Matrix4d> given;
+                 if (b.contains("T_reference_from_pointer")) {
+                     given = mat4(b["T_reference_from_pointer"], "sim pointer T_reference_from_pointer");
+                     p_reference = (*given * tip.homogeneous()).head<3>();
+                 } else if (b.contains("touch_image_mm")) {
                      const Eigen::Vector3d p_image = vec3(b["touch_image_mm"], "sim pointer touch_image_mm");
                      p_reference = (T_image_from_reference.inverse() * p_image.homogeneous()).head<3>();
                  } else {
@@ -496,9 +547,68 @@ void register_navigation_endpoints(EndpointRegistry& reg, CaseStore& store, Trac
                                                       Eigen::AngleAxisd(0.3 - 0.002 * p_reference.y(), Eigen::Vector3d::UnitY()))
                                                          .toRotationMatrix();
                  T_reference_from_pointer.translation() = p_reference - T_reference_from_pointer.linear() * tip;
+                 if (given) T_reference_from_pointer.matrix() = *given;
                  out["from_frame"] = sim->hold(part, ref->T_tracker_from_tool * T_reference_from_pointer, false);
                  out["state"] = "touching";
                  out["p_reference_mm"] = vec_json(p_reference);
+                 return ok(out);
+             }});
+
+    reg.add({"POST", "/api/navigation/pivot", "navigation.pivot", Access::write,
+             "Pivot calibration of the pointer tip: poses collected for `seconds` while the tip rests in a divot and the handle swivels: {seconds?, pointer?, min_spread_deg?, apply?}",
+             [tr, tip_state](const Request& r) {
+                 const json b = body_object(r, "pivot", {"seconds", "pointer", "min_spread_deg", "apply"});
+                 const double seconds = number(b, "seconds", 5.0, 0.5, 30.0, "pivot");
+                 const double min_spread = number(b, "min_spread_deg", 10.0, 0.0, 90.0, "pivot");
+                 const std::string pointer = text(b, "pointer", "pointer", "pivot");
+                 if (b.contains("apply") && !b["apply"].is_boolean()) throw bad("pivot apply", "must be true or false");
+                 const bool apply = b.value("apply", false);
+                 if (!tr->enabled()) throw conflict("tracker", "disabled (tracker.enabled is false)");
+                 // Every frame of the span, read from the module's recent frames as they come
+                 // (it keeps the last 512: re-read every 50 ms, new sequence numbers only).
+                 std::vector<cf::RigidTransform> poses;
+                 std::uint64_t last_seq = 0;
+                 int unseen = 0;
+                 const std::int64_t t_start = cf::tracker::steady_ns(), t_end = t_start + std::int64_t(seconds * 1e9);
+                 for (;;) {
+                     for (const auto& f : tr->recent_frames(std::int64_t(1e9))) {
+                         if (f.sequence <= last_seq || f.publish_steady_ns < t_start) continue;
+                         last_seq = f.sequence;
+                         const auto* t = find_tool(f, pointer);
+                         if (t && t->T_tracker_from_tool) poses.push_back(t->T_tracker_from_tool->matrix());
+                         else ++unseen;
+                     }
+                     if (cf::tracker::steady_ns() >= t_end) break;
+                     std::this_thread::sleep_for(std::chrono::milliseconds(50));
+                 }
+                 if (poses.size() < 10)
+                     throw conflict(pointer, std::to_string(poses.size()) + " pose(s) in " + std::to_string(seconds).substr(0, 4) + " s (" +
+                                                 std::to_string(unseen) + " frames without it): keep the pointer in view while pivoting");
+                 cf::PivotOptions po;
+                 po.min_rotation_spread_deg = min_spread;
+                 cf::PivotResult pr;
+                 try {
+                     pr = cf::pivot_calibration(poses, po);
+                 } catch (const cf::InputError& e) {
+                     throw conflict(pointer, e.what());
+                 }
+                 json res = json::array();
+                 for (double v : pr.residuals_mm) res.push_back(v);
+                 json out{{"tip_pointer_mm", vec_json(pr.tip_tool_mm)}, {"pivot_tracker_mm", vec_json(pr.pivot_tracker_mm)}, {"rms_mm", pr.rms_mm},
+                          {"rotation_spread_deg", pr.rotation_spread_deg}, {"rotation_range_deg", pr.rotation_range_deg},
+                          {"warning", pr.warning}, {"poses", poses.size()}, {"frames_without_pointer", unseen}, {"applied", false}};
+                 if (apply) {
+                     char buf[240];
+                     if (!pr.warning.empty() || pr.rms_mm > 1.0) {
+                         std::snprintf(buf, sizeof buf, "not applied: rms %.2f mm (limit 1.00), rotation spread %.1f deg%s%s", pr.rms_mm,
+                                       pr.rotation_spread_deg, pr.warning.empty() ? "" : ": ", pr.warning.c_str());
+                         throw conflict("pivot", buf);
+                     }
+                     std::snprintf(buf, sizeof buf, "pivot calibration: rms %.2f mm over %zu poses, spread %.1f deg", pr.rms_mm, poses.size(),
+                                   pr.rotation_spread_deg);
+                     tip_state->set(pr.tip_tool_mm, buf);
+                     out["applied"] = true;
+                 }
                  return ok(out);
              }});
 
@@ -554,7 +664,8 @@ void register_navigation_endpoints(EndpointRegistry& reg, CaseStore& store, Trac
              }});
     reg.add({"POST", "/api/cases/{id}/navigation/record", "navigation.record", Access::write,
              "Record a fiducial: the pointer tip in the reference's frame, averaged over the last window_s (0.3 s): {label, window_s?, max_spread_mm?, pointer?, reference?}",
-             [st, tr, tip](const Request& r) {
+             [st, tr, tip_in_use = tip_state](const Request& r) {
+                 const Eigen::Vector3d tip = tip_in_use->get();
                  const auto id = case_id_param(r);
                  const json b = body_object(r, "record", {"label", "window_s", "max_spread_mm", "pointer", "reference"});
                  const std::string label = label_of(b.value("label", json()), "record label");

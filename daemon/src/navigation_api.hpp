@@ -27,6 +27,7 @@ struct NavigationOptions {
     std::filesystem::path t1_path;  ///< the MRI the slices are cut from (data.t1)
     /// Where the pointer's tip is in the pointer tool's frame (mm). NDI's pointer .rom files
     /// put the tool's origin at the calibrated tip, as the simulator's pointer does: zero.
+    /// POST /api/navigation/pivot {apply: true} replaces it (in memory) while the daemon runs.
     double tip_pointer_mm[3] = {0, 0, 0};
 };
 
