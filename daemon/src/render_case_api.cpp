@@ -47,7 +47,9 @@ FusedParts fused_parts(CaseStore& st, std::int64_t case_id, std::optional<std::i
     if (f.reg.status != RegistrationStatus::succeeded || !f.reg.final_pose)
         throw ApiError(409, "conflict", c + " registration " + std::to_string(f.reg.id) + ": it did not succeed (" + to_string(f.reg.status) + ")");
     try {
-        f.T = parse_pose(*f.reg.final_pose, c + " registration pose");
+        // Stored as {"T_camera_from_world": 4x4} (the register job) or as the 4x4 itself.
+        const json& fp = *f.reg.final_pose;
+        f.T = parse_pose(fp.is_array() ? json{{"T_camera_from_world", fp}} : fp, c + " registration pose");
     } catch (const InputError& e) {
         throw ApiError(500, "internal", e.what());
     }

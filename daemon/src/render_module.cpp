@@ -471,7 +471,8 @@ void RenderModule::loop() {
             ro.want_depth = true;  // kept for picks of this view (the CPU caster has it anyway; GL reads one more buffer)
             if (job->mode == Job::Mode::pick) {
                 // The pixel whose centre the ray goes through (the depth belongs to pixel centres).
-                const int u = int(std::lround(job->pixel.x())), v = int(std::lround(job->pixel.y()));
+                const int u = std::clamp(int(std::lround(job->pixel.x())), 0, K.width - 1);
+                const int v = std::clamp(int(std::lround(job->pixel.y())), 0, K.height - 1);
                 const bool reuse = sc.last_view_key == job->view_key && sc.last_depth_mm.size() == std::size_t(K.width) * K.height;
                 if (!reuse) {
                     r->set_transfer_function(tf);

@@ -233,6 +233,9 @@ TEST(RenderPick, BadInputIsRefusedNamingIt) {
     EXPECT_NE(r.body.find("outside the 320x240 image"), std::string::npos) << r.body;
     r = with({-1, 10});
     EXPECT_EQ(r.status, 400) << r.body;
+    r = with({-0.5, -0.5});  // the corner pixel's outer edge: inside, answered for pixel (0, 0)
+    EXPECT_EQ(r.status, 422) << r.body;
+    EXPECT_NE(r.body.find("(0, 0)"), std::string::npos) << r.body;
     r = with({10});
     EXPECT_EQ(r.status, 400) << r.body;
     EXPECT_NE(r.body.find("pixel"), std::string::npos) << r.body;
