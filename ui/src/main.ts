@@ -478,7 +478,18 @@ function caseContents(id: number, body: HTMLElement, alive: Alive, got: (c: Case
           location.hash = "#/jobs";
         } catch (e) { showError(e); reg.disabled = false; }
       });
-      parts.unshift(h("div", { class: "toolbar", "data-write": "" }, reg,
+      // Planning (the `plan` job: brain mask, surface, CT/fMRI on the T1), its progress on the Jobs screen.
+      const plan = h("button", { class: "btn", "data-testid": "case-plan" }, "Start planning");
+      plan.disabled = !vols.some((x) => x.modality === "T1");
+      plan.addEventListener("click", async () => {
+        plan.disabled = true;
+        try {
+          const j = await apiJson<Job>("POST", "/api/jobs", { kind: "plan", params: { case_id: id } });
+          upsertJob(j);
+          location.hash = "#/jobs";
+        } catch (e) { showError(e); plan.disabled = false; }
+      });
+      parts.unshift(h("div", { class: "toolbar", "data-write": "" }, reg, plan,
         h("span", { class: "muted" }, ready ? "Registers the case's volume with its photo." : "Needs a volume and a photo first.")));
       parts.push(h("h2", {}, "Add data"), uploadForms(id));
     }
