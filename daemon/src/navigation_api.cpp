@@ -92,7 +92,7 @@ std::string label_of(const json& v, const std::string& what) {
     const std::string s = v.get<std::string>();
     if (s.empty() || s.size() > 64) throw bad(what, "must be 1..64 characters");
     for (unsigned char c : s)
-        if (c < 0x20) throw bad(what, "must not hold control characters");
+        if (c < 0x20 || c == '/') throw bad(what, "must not hold '/' or control characters");
     return s;
 }
 

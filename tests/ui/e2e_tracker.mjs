@@ -1,7 +1,8 @@
 // The Tracker screen in the end-to-end test (called by e2e.mjs): a case of its own, the tools
 // live, skin fiducials suggested on the MRI, four touched with the simulated pointer and recorded
 // by touch, a recording refused while the pointer moves (the daemon's words on the screen), the
-// FRE shown, the registration accepted, the pointer tip on the slices. Screenshots
+// FRE shown, the registration accepted, the pointer tip on the slices, a pivot calibration with
+// the pointer held still refused. Screenshots
 // tracker-01-fiducials.png and tracker-02-registered.png.
 
 /** page: a playwright page on the daemon at base (the kiosk: every access). */
@@ -59,6 +60,12 @@ export async function trackerE2E({ page, base, step, expect, shot, checkTargets 
   const nav = await api("GET", `/api/cases/${id}/navigation`);
   expect(nav.j?.accepted?.fre_mm === fre, "the accepted registration is the one shown");
   expect(await page.getByTestId("accept-btn").isDisabled(), "accepting the same registration twice is not offered");
+  // A pivot calibration with the pointer held still is refused in words; the tip stays.
+  await page.getByTestId("pivot-btn").tap();
+  const pivotRefused = page.getByTestId("nav-msg").filter({ hasText: /rotation|not applied|move/ });
+  await pivotRefused.waitFor({ timeout: 20000 });
+  step(`pivot with the pointer held still: ${await pivotRefused.textContent()}`);
+  expect((await page.getByTestId("tip-line").textContent()).includes("(0.00, 0.00, 0.00)"), "the tip in use is unchanged");
   await checkTargets("tracker");
   await shot("tracker-02-registered");
   return id;

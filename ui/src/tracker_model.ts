@@ -23,6 +23,7 @@ export interface PointerAnswer {
   p_reference_mm: Vec3 | null;
   p_tracker_mm: Vec3 | null;
   tip_pointer_mm: Vec3;
+  tip_source?: string; // "default (the pointer tool's origin)" or "pivot calibration: rms ..."
 }
 export interface ImageFiducial { label: string; p_image_mm: Vec3 }
 export interface PatientFiducial { label: string; p_reference_mm: Vec3; spread_mm: number; frames: number; recorded_utc?: string }
@@ -139,6 +140,20 @@ export function needsNewSlices(prev: Vec3 | null, p: Vec3 | null, minMoveMm = 0.
 /** GET /api/navigation/slices for a point. */
 export function slicesPath(p: Vec3, size: number, fovMm = 220): string {
   return `/api/navigation/slices?x=${p[0].toFixed(2)}&y=${p[1].toFixed(2)}&z=${p[2].toFixed(2)}&size=${Math.round(size)}&fov_mm=${fovMm}&format=jpeg`;
+}
+
+/** The pointer tip in use, in words. */
+export function tipLine(a: PointerAnswer | null): string {
+  if (!a) return "Pointer tip: unknown (no answer from the daemon)";
+  const t = a.tip_pointer_mm;
+  return `Pointer tip (${t.map((v) => v.toFixed(2)).join(", ")}) mm in the pointer's frame: ${a.tip_source ?? "default"}`;
+}
+
+/** A pivot calibration's answer in words (POST /api/navigation/pivot). */
+export interface PivotAnswer { tip_pointer_mm: Vec3; rms_mm: number; rotation_spread_deg: number; poses: number; warning: string; applied: boolean }
+export function pivotLine(p: PivotAnswer): string {
+  const tip = p.tip_pointer_mm.map((v) => v.toFixed(2)).join(", ");
+  return `${p.applied ? "Tip calibrated" : "Tip measured (not applied)"}: (${tip}) mm, rms ${p.rms_mm.toFixed(2)} mm over ${p.poses} poses, swivelled ${p.rotation_spread_deg.toFixed(1)}°${p.warning ? `; ${p.warning}` : ""}`;
 }
 
 export function fmtPoint(p: Vec3 | null): string {

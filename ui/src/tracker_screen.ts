@@ -6,8 +6,8 @@ import "./tracker_screen.css";
 import { apiBlob, apiJson, plainMessage } from "./api";
 import { h } from "./dom";
 import {
-  canRegister, fiducialLines, fmtPoint, freVerdict, needsNewSlices, nextFiducial, pointerInImage, rateView, slicesPath, toolViews,
-  type NavState, type PointerAnswer, type Registration, type Vec3,
+  canRegister, fiducialLines, fmtPoint, freVerdict, needsNewSlices, nextFiducial, pivotLine, pointerInImage, rateView, slicesPath, tipLine, toolViews,
+  type NavState, type PivotAnswer, type PointerAnswer, type Registration, type Vec3,
 } from "./tracker_model";
 
 export interface TrackerScreenDeps {
@@ -36,8 +36,11 @@ export function trackerScreen(caseId: number, body: HTMLElement, deps: TrackerSc
   const rate = h("span", { class: "pill", "data-testid": "tracker-rate" }, "—");
   const sliceImg = h("img", { class: "nav-slices", alt: "Axial, coronal and sagittal MRI slices at the pointer tip", "data-testid": "tracker-slices" });
   const sliceCaption = h("p", { class: "muted nav-caption", "data-testid": "tracker-slice-caption" }, "Waiting for the tracker…");
+  const tipText = h("p", { class: "muted", "data-testid": "tip-line" }, "");
+  const pivot = h("button", { class: "btn", type: "button", "data-testid": "pivot-btn", hidden: !deps.writable }, "Calibrate tip (pivot, 5 s)");
   const left = h("section", { class: "panel nav-live" },
     h("div", { class: "nav-row" }, h("h2", {}, "Tools"), rate), tools,
+    h("div", { class: "nav-row" }, h("span", { class: "grow" }, tipText), pivot),
     h("div", { class: "nav-slice-labels" }, h("span", {}, "Axial"), h("span", {}, "Coronal"), h("span", {}, "Sagittal")),
     sliceImg, sliceCaption);
 
@@ -163,6 +166,15 @@ export function trackerScreen(caseId: number, body: HTMLElement, deps: TrackerSc
     say("");
     await reload();
   }));
+  pivot.addEventListener("click", () => act(async () => {
+    pivot.textContent = "Pivoting: tip in the divot, swivel the handle…";
+    try {
+      const p = await apiJson<PivotAnswer>("POST", "/api/navigation/pivot", { seconds: 5, apply: true });
+      say(pivotLine(p), false);
+    } finally {
+      pivot.textContent = "Calibrate tip (pivot, 5 s)";
+    }
+  }));
   redo.addEventListener("click", () => act(async () => {
     await apiJson("DELETE", `${base}/patient-fiducials`);
     selected = null;
@@ -179,6 +191,8 @@ export function trackerScreen(caseId: number, body: HTMLElement, deps: TrackerSc
     tools.replaceChildren(...views.map((v) =>
       h("li", { class: `nav-tool ${v.level}`, "data-testid": `tool-${v.name}`, "data-level": v.level },
         h("span", { class: "nav-dot", "aria-hidden": "true" }), h("strong", {}, v.name), h("span", {}, v.text), h("span", { class: "muted" }, `RMS ${v.rms}`))));
+    tipText.textContent = tipLine(pointer);
+    pivot.disabled = busy;
     const rv = rateView(pointer);
     rate.textContent = rv.text;
     rate.className = `pill ${rv.level}`;

@@ -1,6 +1,6 @@
 import { describe, expect, it } from "vitest";
 import {
-  applyT, canRegister, fiducialLines, freVerdict, needsNewSlices, nextFiducial, pointerInImage, rateView, slicesPath, toolView, toolViews,
+  applyT, canRegister, fiducialLines, freVerdict, needsNewSlices, nextFiducial, pivotLine, pointerInImage, rateView, slicesPath, tipLine, toolView, toolViews,
   type NavState, type PointerAnswer, type Registration, type ToolJson, type Vec3,
 } from "../src/tracker_model";
 
@@ -94,6 +94,19 @@ describe("fiducials to touch", () => {
     expect(freVerdict(0.42)).toEqual({ text: "FRE 0.42 mm: good", level: "ok" });
     expect(freVerdict(2).level).toBe("warn");
     expect(freVerdict(3.5).text).toContain("redo");
+  });
+});
+
+describe("pointer tip", () => {
+  it("says which tip is in use", () => {
+    expect(tipLine(answer([], { tip_pointer_mm: [3, -2, -150], tip_source: "pivot calibration: rms 0.13 mm" })))
+      .toBe("Pointer tip (3.00, -2.00, -150.00) mm in the pointer's frame: pivot calibration: rms 0.13 mm");
+    expect(tipLine(null)).toContain("unknown");
+  });
+  it("a pivot answer in words, with its warning", () => {
+    const p = { tip_pointer_mm: [1, 2, 3] as Vec3, rms_mm: 0.134, rotation_spread_deg: 15.44, poses: 150, warning: "", applied: true };
+    expect(pivotLine(p)).toBe("Tip calibrated: (1.00, 2.00, 3.00) mm, rms 0.13 mm over 150 poses, swivelled 15.4°");
+    expect(pivotLine({ ...p, applied: false, warning: "the pointer did not move enough" })).toMatch(/^Tip measured \(not applied\).*did not move enough$/);
   });
 });
 
