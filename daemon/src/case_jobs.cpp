@@ -4,6 +4,7 @@
 #include <atomic>
 #include <chrono>
 #include <fstream>
+#include <functional>
 #include <set>
 
 #include "case_api.hpp"
@@ -200,6 +201,18 @@ void register_case_job_kinds(JobQueue& jobs, CaseStore& store, const fs::path& w
             for (std::size_t k; (k = m.find(prefix)) != std::string::npos;) m.erase(k, prefix.size());
             throw std::runtime_error("plan case " + std::to_string(case_id) + ": " + m);
         }
+        // plan.json names its inputs by file: the staged copies' names, not the work folder's path.
+        const std::string staged = (scratch.dir / "in").string() + "/";
+        std::function<void(json&)> strip = [&](json& j) {
+            if (j.is_string()) {
+                std::string v = j.get<std::string>();
+                for (std::size_t k; (k = v.find(staged)) != std::string::npos;) v.erase(k, staged.size());
+                j = v;
+            } else if (j.is_structured()) {
+                for (auto& x : j) strip(x);
+            }
+        };
+        strip(plan_json);
         ctx.check();  // the last point a cancel takes effect: from here on the results are stored
         ctx.report("storing", 0.97);
         int revision = 1;
@@ -217,7 +230,8 @@ void register_case_job_kinds(JobQueue& jobs, CaseStore& store, const fs::path& w
             ri.kind = f.kind;
             ri.name = "plan" + std::to_string(revision) + "_" + f.name;
             ri.media_type = f.media_type;
-            ri.file = file;
+            if (std::string(f.kind) == "plan_json") ri.bytes = plan_json.dump(2) + "\n";  // without the work folder's paths
+            else ri.file = file;
             ri.params = {{"plan_revision", revision},
                          {"job_id", ctx.id()},
                          {"inputs", inputs},

@@ -375,6 +375,11 @@ TEST(PlanJob, StoresTheSurfaceAndMaskAsARevisionWithParametersAndTimings) {
     EXPECT_GT(pj["params"]["seconds"].get<double>(), 0);
     EXPECT_EQ(pj["params"]["params"]["max_triangles"], 20000);
     EXPECT_TRUE(pj["params"]["plan"].is_object());
+    EXPECT_EQ(pj["params"]["plan"].dump().find("/work/"), std::string::npos) << "no scratch path in plan.json";
+    const Reply stored_plan = get(pj["download"].get<std::string>());
+    ASSERT_EQ(stored_plan.status, 200);
+    EXPECT_EQ(stored_plan.j["steps"], pj["params"]["plan"]["steps"]);
+    EXPECT_EQ(stored_plan.body.find("/work/"), std::string::npos) << stored_plan.body.substr(0, 300);
     // The stored surface: a mesh within the head, within the triangle budget.
     const Reply mesh = get(by_kind["plan_brain_surface"]["download"].get<std::string>());
     ASSERT_EQ(mesh.status, 200);
