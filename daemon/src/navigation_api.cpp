@@ -104,13 +104,15 @@ struct Stored {
 };
 Stored newest(CaseStore& store, const CaseRecord& rec, const char* kind) {
     Stored s;
+    const ResultRecord* last = nullptr;
     for (const auto& x : rec.results)
-        if (x.kind == kind && x.id > s.revision) {
-            s.revision = x.id;
-            s.created_utc = format_utc(x.created_utc);
-            s.content = json::parse(store.read_blob(x.blob.sha256), nullptr, false);
-            if (s.content.is_discarded()) throw ApiError(500, "corrupt", std::string(kind) + " result " + std::to_string(x.id) + ": not JSON");
-        }
+        if (x.kind == kind && (!last || x.id > last->id)) last = &x;
+    if (!last) return s;
+    s.revision = last->id;
+    s.created_utc = format_utc(last->created_utc);
+    s.content = json::parse(store.read_blob(last->blob.sha256), nullptr, false);  // verified against its hash
+    if (s.content.is_discarded() || !s.content.is_object() || (!s.content.contains("fiducials") && std::string(kind) != kRegistrationKind))
+        throw ApiError(500, "corrupt", std::string(kind) + " result " + std::to_string(last->id) + ": not the JSON this daemon wrote");
     return s;
 }
 
@@ -436,6 +438,9 @@ void register_navigation_endpoints(EndpointRegistry& reg, CaseStore& store, Trac
     TrackerModule* tr = &tracker;
     auto tip_state = std::make_shared<PointerTip>(Eigen::Vector3d(options.tip_pointer_mm[0], options.tip_pointer_mm[1], options.tip_pointer_mm[2]));
     auto slices = std::make_shared<SliceVolume>(options.t1_path);
+    // Recording and deleting read the newest list of recorded fiducials and store the next
+    // one: two at once must not both build on the same list (one would be lost).
+    auto list_mu = std::make_shared<std::mutex>();
 
     // ---- live pointer, slices, suggestions, simulator ----
     reg.add({"GET", "/api/navigation/pointer", "navigation.pointer", Access::read,
@@ -664,7 +669,7 @@ void register_navigation_endpoints(EndpointRegistry& reg, CaseStore& store, Trac
              }});
     reg.add({"POST", "/api/cases/{id}/navigation/record", "navigation.record", Access::write,
              "Record a fiducial: the pointer tip in the reference's frame, averaged over the last window_s (0.3 s): {label, window_s?, max_spread_mm?, pointer?, reference?}",
-             [st, tr, tip_in_use = tip_state](const Request& r) {
+             [st, tr, tip_in_use = tip_state, list_mu](const Request& r) {
                  const Eigen::Vector3d tip = tip_in_use->get();
                  const auto id = case_id_param(r);
                  const json b = body_object(r, "record", {"label", "window_s", "max_spread_mm", "pointer", "reference"});
@@ -673,6 +678,7 @@ void register_navigation_endpoints(EndpointRegistry& reg, CaseStore& store, Trac
                  const double max_spread = number(b, "max_spread_mm", 0.5, 0.05, 5.0, "record");
                  const std::string pointer = text(b, "pointer", "pointer", "record"), reference = text(b, "reference", "reference", "record");
                  return guarded([&] {
+                     std::lock_guard lk(*list_mu);
                      const CaseRecord rec = st->get_case(id);  // 404 before the tracker is asked
                      const Stored img = newest(*st, rec, kImageKind);
                      const auto fids = image_fiducials(img);
@@ -695,9 +701,10 @@ void register_navigation_endpoints(EndpointRegistry& reg, CaseStore& store, Trac
                      return ok({{"revision", x.id}, {"recorded", entry}, {"fiducials", list}}, 201);
                  });
              }});
-    auto forget = [st](const Request& r, const std::optional<std::string>& label) {
+    auto forget = [st, list_mu](const Request& r, const std::optional<std::string>& label) {
         const auto id = case_id_param(r);
         return guarded([&] {
+            std::lock_guard lk(*list_mu);
             const CaseRecord rec = st->get_case(id);
             const Stored pat = newest(*st, rec, kPatientKind);
             json list = json::array();

@@ -234,6 +234,16 @@ TEST(Navigation, FiducialsTouchedWithTheSimulatedPointerGiveTheTruePatientRegist
     ASSERT_EQ(del(c + "/navigation/patient-fiducials").status, 200);
     EXPECT_EQ(get(c + "/navigation").j["patient_fiducials"]["fiducials"].size(), 0u);
     EXPECT_EQ(get(c + "/navigation").j["accepted_count"], 1);  // the accepted one is kept
+
+    // Two recordings at once (two screens): both land, neither list overwrites the other.
+    Reply r1, r2;
+    std::thread t1([&] { r1 = post(c + "/navigation/record", {{"label", "nasion"}}); });
+    std::thread t2([&] { r2 = post(c + "/navigation/record", {{"label", "left ear"}}); });
+    t1.join();
+    t2.join();
+    EXPECT_EQ(r1.status, 201) << r1.body;
+    EXPECT_EQ(r2.status, 201) << r2.body;
+    EXPECT_EQ(get(c + "/navigation").j["patient_fiducials"]["fiducials"].size(), 2u);
 }
 
 TEST(Navigation, BadInputIsRefusedAndNothingStoredChanges) {
