@@ -130,7 +130,7 @@ try {
   step(`rendered ${size1}`);
 
   // The Tracker screen: patient registration with the simulated pointer (e2e_tracker.mjs).
-  await trackerE2E({ page, base, step, expect, shot, checkTargets });
+  const trackerCaseId = await trackerE2E({ page, base, step, expect, shot, checkTargets });
   await page.goto(`${base}/#/case/${createdId}`);
   await page.waitForFunction(() => document.querySelector('[data-testid="render-image"]')?.dataset.full === "true", null, { timeout: 30000 });
 
@@ -522,6 +522,13 @@ try {
   await rp.getByTestId("case-tab-audit").tap();
   await rp.getByTestId("case-audit").filter({ hasText: "rita" }).waitFor({ timeout: 20000 });
   await shot("15-review-audit", rp);
+  // The Tracker screen read-only: the accepted registration shown, nothing to record or accept.
+  await rp.goto(`${rbase}/#/case/${trackerCaseId}/tracker`);
+  await rp.waitForFunction(() => Number(document.querySelector('[data-testid="accepted-line"]')?.dataset.revision) > 0, null, { timeout: 15000 });
+  expect(await rp.getByTestId("record-btn").isDisabled() && await rp.getByTestId("accept-btn").isDisabled() &&
+         !(await rp.getByTestId("pivot-btn").isVisible()) && !(await rp.getByTestId("sim-touch-btn").isVisible()),
+         "a reviewer cannot record, accept, calibrate or move the simulated pointer on the Tracker screen");
+  await shot("15b-review-tracker", rp);
   await rp.getByRole("link", { name: "Jobs" }).tap();
   await rp.getByTestId("job-card").first().waitFor({ timeout: 15000 });
   expect(await rp.getByTestId("start-register").count() === 0, "a reviewer gets no Start registration on Jobs");

@@ -2,8 +2,8 @@
 // live, skin fiducials suggested on the MRI, four touched with the simulated pointer and recorded
 // by touch, a recording refused while the pointer moves (the daemon's words on the screen), the
 // FRE shown, the registration accepted, the pointer tip on the slices, a pivot calibration with
-// the pointer held still refused. Screenshots
-// tracker-01-fiducials.png and tracker-02-registered.png.
+// the pointer held still refused, the pointer dropping out shown in red and Record refused.
+// Screenshots tracker-01-fiducials.png, tracker-02-registered.png, tracker-03-pointer-missing.png.
 
 /** page: a playwright page on the daemon at base (the kiosk: every access). */
 export async function trackerE2E({ page, base, step, expect, shot, checkTargets }) {
@@ -68,5 +68,17 @@ export async function trackerE2E({ page, base, step, expect, shot, checkTargets 
   expect((await page.getByTestId("tip-line").textContent()).includes("(0.00, 0.00, 0.00)"), "the tip in use is unchanged");
   await checkTargets("tracker");
   await shot("tracker-02-registered");
+
+  // The pointer drops out (hidden in the simulator): its row turns red and says so, Record is
+  // then refused naming it; back in view, green again.
+  expect((await api("POST", "/api/tracker/sim/pointer", { hidden: true })).status === 200, "simulated pointer hidden");
+  await page.locator('[data-testid="tool-pointer"][data-level="bad"]').filter({ hasText: /missing|stale/ }).waitFor({ timeout: 10000 });
+  await page.getByTestId("record-btn").tap();
+  const lost = page.getByTestId("nav-msg").filter({ hasText: "pointer: not tracked" });
+  await lost.waitFor({ timeout: 10000 });
+  step(`pointer dropped out: ${await page.getByTestId("tool-pointer").textContent()}; Record: ${await lost.textContent()}`);
+  await shot("tracker-03-pointer-missing");
+  expect((await api("POST", "/api/tracker/sim/pointer", { free: true })).status === 200, "simulated pointer back");
+  await page.locator('[data-testid="tool-pointer"][data-level="ok"]').waitFor({ timeout: 10000 });
   return id;
 }
