@@ -151,7 +151,7 @@ void register_render_case_endpoints(EndpointRegistry& reg, RenderModule& render,
                      body.erase("registration_id");
                      // Defaults: the registered camera (pose, and the photo's intrinsics at the photo's size within the limits).
                      if (!body.contains("T_camera_from_world")) body["T_camera_from_world"] = pose_to_json(f.T);
-                     const auto [w, h] = fitted_size(f.photo.intrinsics, 8192, 8192);
+                     const auto [w, h] = fitted_size(f.photo.intrinsics, rm->max_width(), rm->max_height());
                      if (!body.contains("width") && !body.contains("height")) {
                          body["width"] = w;
                          body["height"] = h;

@@ -74,6 +74,9 @@ public:
     nlohmann::json volume_json() const;
     nlohmann::json status_json() const;
     bool healthy() const;
+    /// renderer.max_width / max_height: the largest view a request may ask for.
+    int max_width() const { return cfg_.render_max_width; }
+    int max_height() const { return cfg_.render_max_height; }
 
 private:
     struct Job;
