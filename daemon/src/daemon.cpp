@@ -25,6 +25,7 @@
 #include "http_server.hpp"
 #include "navigation_api.hpp"
 #include "render_module.hpp"
+#include "tags_api.hpp"
 #include "tracker_module.hpp"
 
 namespace cf::daemon {
@@ -269,6 +270,7 @@ void Daemon::start() {
     d.register_endpoints();
     register_case_endpoints(d.registry, *d.store, d.cases_dir, d.work_dir, d.cfg.session_ttl_s);
     register_case_data_endpoints(d.registry, *d.store, d.work_dir, d.cfg.max_upload_bytes);
+    register_tags_endpoints(d.registry, *d.store, d.work_dir);  // stimulation tags (tags_api.cpp)
     register_navigation_endpoints(d.registry, *d.store, *d.tracker, NavigationOptions{d.cfg.t1_path});
     cf::db::CaseStore* store = d.store.get();
     d.http->set_authenticator([store](const std::string& token, Client& c) {

@@ -12,6 +12,7 @@ import { dragOrbit, NAMED_VIEWS, namedViewOf, orbitPose, zoomOrbit, type Orbit, 
 import { TfEditor } from "./tf_editor";
 import { centreLps, gunzipIfNeeded, parseNifti, type Volume as NiftiVolume } from "./nifti";
 import { orbitCamera } from "./fused_pose";
+import { mountTags, type Intrinsics } from "./tags";
 import type { TfJson } from "./tf_model";
 import { canWrite, KIOSK, loadSession, roleLabel, saveSession, sessionFromLogin, wsUrl, type Session } from "./session";
 import { auditRows, fmtBytes, fmtTime, holdings, patientLine, registrationRows, type AuditEntry, type CaseRecord } from "./case_detail";
@@ -838,6 +839,7 @@ function caseFused(id: number, body: HTMLElement, alive: Alive, got: (c: CaseRec
     }
     const T0 = reg.final_pose!.T_camera_from_world;
     let T = T0, preset = "cortex_t1", seq = 0;
+    let tagView: ReturnType<typeof mountTags> | null = null;
     const snapBtn = h("button", { class: "btn", "data-testid": "fused-camera-view" }, "Camera view");
     photoImg.hidden = true;
     modelImg.style.opacity = "1";
@@ -854,6 +856,7 @@ function caseFused(id: number, body: HTMLElement, alive: Alive, got: (c: CaseRec
         modelImg.dataset.preset = preset;
         modelImg.dataset.textured = "true";
         stage.dataset.atCamera = String(T === T0);
+        tagView?.redraw();
       } catch (e) { showError(e); }
     };
     opacity.removeEventListener("input", setOpacity);
@@ -871,6 +874,11 @@ function caseFused(id: number, body: HTMLElement, alive: Alive, got: (c: CaseRec
     });
     presetBox.after(h("h2", {}, "View"), h("div", { class: "choices" }, snapBtn),
                     h("p", { class: "muted" }, "Drag on the picture to turn the model; Camera view goes back to the photo's camera."));
+    // Stimulation tags (src/tags.ts): placed on the photo at the registered camera, drawn in 3D.
+    const atCam = () => stage.dataset.atCamera === "true";
+    tagView = mountTags({ caseId: id, registrationId: reg.id, stage, panel: info.parentElement as HTMLElement, K: photo.intrinsics as unknown as Intrinsics,
+                          viewW: w, viewH: hh, pose: () => T, atCamera: atCam, toCamera: async () => { snapBtn.click(); await new Promise((r) => setTimeout(r, 0)); },
+                          canWrite: !document.body.classList.contains("read-only"), showError });
     // Drag: 0.3 degrees a pixel about the point the camera looks at (at the registered distance).
     let drag: { x: number; y: number; T: number[][] } | null = null;
     const pivot = Math.abs(T0[2][3]) > 1 ? Math.hypot(T0[0][3], T0[1][3], T0[2][3]) : 300;
