@@ -1,13 +1,19 @@
 #include "cortexfuse/daemon/daemon.hpp"
 
+#include <atomic>
+#include <condition_variable>
 #include <cstdlib>
 #include <deque>
 #include <filesystem>
 #include <future>
+#include <limits>
 #include <mutex>
 #include <regex>
 #include <sstream>
 #include <thread>
+
+#include <opencv2/imgcodecs.hpp>
+#include <opencv2/imgproc.hpp>
 
 #include "cortexfuse/core/case.hpp"
 #include "cortexfuse/core/error.hpp"
@@ -67,7 +73,7 @@ public:
     }
     nlohmann::json status_json() const {
         std::lock_guard lk(mu_);
-        nlohmann::json j{{"backend", cfg_.camera_backend}, {"device", cfg_.camera_device}, {"state", state_}};
+        nlohmann::json j{{"backend", cfg_.camera_backend}, {"device", cfg_.camera_device}, {"state", state_}, {"live", live_on_.load()}};
         if (!error_.empty()) j["last_error"] = error_;
         if (!model_.empty()) {
             j["model"] = model_;
@@ -76,6 +82,42 @@ public:
             j["last_capture_ms"] = stats_.last_capture_ms;
         }
         return j;
+    }
+    /// Live view (docs/api/camera.md): the newest live frame after sequence `after` as JPEG,
+    /// waiting up to `wait` for one. Each call keeps the stream running for kLiveIdle more; the
+    /// camera thread stops it when nobody asked for that long (the screen was left).
+    struct LiveJpeg {
+        std::string bytes;
+        std::uint64_t sequence = 0;
+        int width = 0, height = 0;
+    };
+    LiveJpeg live_jpeg(std::uint64_t after, int max_width, int quality, std::chrono::milliseconds wait) {
+        if (cfg_.camera_backend == "none") throw ApiError(503, "unavailable", "camera: camera.backend is none");
+        {
+            std::lock_guard lk(q_mu_);
+            if (stop_) throw ApiError(503, "unavailable", "camera: the daemon is stopping");
+            live_until_ = std::chrono::steady_clock::now() + kLiveIdle;
+        }
+        {
+            std::lock_guard lk(live_mu_);
+            live_error_.clear();  // a failure before this request is not its answer
+        }
+        q_cv_.notify_all();
+        std::unique_lock lk(live_mu_);
+        live_cv_.wait_for(lk, wait, [&] { return (live_frame_.sequence > after && !live_frame_.bgr.empty()) || !live_error_.empty(); });
+        if (live_frame_.bgr.empty() || live_frame_.sequence <= after) {
+            if (!live_error_.empty()) throw ApiError(503, "unavailable", "camera live view: " + live_error_);
+            const std::string st = status_json().value("state", std::string("?"));
+            throw ApiError(503, "unavailable", "camera live view: no new frame within " + std::to_string(wait.count()) + " ms (camera " + st + ")");
+        }
+        cv::Mat img = live_frame_.bgr;
+        const std::uint64_t seq = live_frame_.sequence;
+        lk.unlock();
+        // Encoded here, on the caller's thread: the camera thread only copies frames.
+        if (img.cols > max_width) cv::resize(img, img, cv::Size(max_width, std::max(1, int(std::lround(double(img.rows) * max_width / img.cols)))), 0, 0, cv::INTER_AREA);
+        std::vector<uchar> buf;
+        cv::imencode(".jpg", img, buf, {cv::IMWRITE_JPEG_QUALITY, quality});
+        return {std::string(buf.begin(), buf.end()), seq, img.cols, img.rows};
     }
     cf::camera::Photo capture() {
         if (cfg_.camera_backend == "none") throw ApiError(503, "unavailable", "camera: camera.backend is none");
@@ -94,41 +136,113 @@ private:
     void loop() {
         for (;;) {
             std::packaged_task<cf::camera::Photo()> task;
+            bool live = false;
             {
                 std::unique_lock lk(q_mu_);
-                q_cv_.wait(lk, [&] { return stop_ || !queue_.empty(); });
+                const auto wants_live = [&] { return live_until_ > std::chrono::steady_clock::now(); };
+                if (!live_on_) q_cv_.wait(lk, [&] { return stop_ || !queue_.empty() || wants_live(); });
                 if (stop_) break;  // abandoned tasks answer broken_promise to their callers
-                task = std::move(queue_.front());
-                queue_.pop_front();
+                if (!queue_.empty()) {
+                    task = std::move(queue_.front());
+                    queue_.pop_front();
+                }
+                live = wants_live();
             }
-            task();
+            if (task.valid()) {
+                task();
+                continue;
+            }
+            if (live) live_step();
+            else if (live_on_) stop_live();
         }
+        if (live_on_) stop_live();
         queue_.clear();
         cam_.reset();
         backend_.reset();
     }
+    /// Camera thread: one live frame (starting the stream first), at most kLiveFps a second.
+    void live_step() {
+        try {
+            open_on_thread();
+            if (!live_on_) {
+                cam_->start_stream({640, 480, kLiveFps});
+                live_on_ = true;
+            }
+            cf::camera::Frame f;
+            if (!cam_->next_frame(f, std::chrono::milliseconds(200)) || f.bgr.empty()) return;
+            const auto now = std::chrono::steady_clock::now();
+            {
+                std::lock_guard lk(live_mu_);
+                live_frame_.bgr = f.bgr;
+                live_frame_.sequence = ++live_seq_;
+                live_error_.clear();
+            }
+            live_cv_.notify_all();
+            {
+                std::lock_guard lk(mu_);
+                stats_ = cam_->stats();
+            }
+            // Pace: no faster than kLiveFps whatever the device delivers.
+            const auto next = now + std::chrono::microseconds(int64_t(1e6 / kLiveFps));
+            std::unique_lock lk(q_mu_);
+            q_cv_.wait_until(lk, next, [&] { return stop_ || !queue_.empty(); });
+        } catch (const std::exception& e) {
+            {
+                std::lock_guard lk(live_mu_);
+                live_error_ = e.what();
+            }
+            live_cv_.notify_all();
+            {
+                std::lock_guard lk(mu_);
+                error_ = e.what();
+            }
+            stop_live();
+            std::lock_guard lk(q_mu_);
+            live_until_ = {};  // the next request starts it again
+        }
+    }
+    void stop_live() {
+        if (cam_ && live_on_) {
+            try {
+                cam_->stop_stream();
+            } catch (const std::exception&) {
+            }
+        }
+        live_on_ = false;
+    }
+    void open_on_thread() {
+        if (cam_) return;
+        set_state("opening");
+        cf::camera::SimCameraConfig sc;
+        sc.volume_path = cfg_.t1_path;
+        sc.mask_path = cfg_.brain_mask_path;
+        auto backend = cf::camera::make_backend(cfg_.camera_backend, sc);
+        std::string id = cfg_.camera_device;
+        if (id.empty()) {
+            const auto list = backend->list();
+            if (list.empty()) {
+                set_state("failed");
+                throw cf::camera::CameraError(cfg_.camera_backend, "no camera found");
+            }
+            id = list.front().id;
+        }
+        try {
+            cam_ = backend->open(id);
+        } catch (...) {
+            set_state("failed");
+            throw;
+        }
+        backend_ = std::move(backend);
+        const auto info = cam_->info();
+        std::lock_guard lk(mu_);
+        state_ = "open";
+        model_ = info.model;
+        id_ = info.id;
+    }
     cf::camera::Photo capture_on_thread() {
         try {
-            if (!cam_) {
-                set_state("opening");
-                cf::camera::SimCameraConfig sc;
-                sc.volume_path = cfg_.t1_path;
-                sc.mask_path = cfg_.brain_mask_path;
-                auto backend = cf::camera::make_backend(cfg_.camera_backend, sc);
-                std::string id = cfg_.camera_device;
-                if (id.empty()) {
-                    const auto list = backend->list();
-                    if (list.empty()) throw cf::camera::CameraError(cfg_.camera_backend, "no camera found");
-                    id = list.front().id;
-                }
-                cam_ = backend->open(id);
-                backend_ = std::move(backend);
-                const auto info = cam_->info();
-                std::lock_guard lk(mu_);
-                state_ = "open";
-                model_ = info.model;
-                id_ = info.id;
-            }
+            if (live_on_) stop_live();  // a still while live: the stream restarts on the next live step
+            open_on_thread();
             auto photo = cam_->capture();
             std::lock_guard lk(mu_);
             stats_ = cam_->stats();
@@ -157,6 +271,16 @@ private:
     std::condition_variable q_cv_;
     std::deque<std::packaged_task<cf::camera::Photo()>> queue_;
     bool stop_ = false;
+    // Live view: requested until live_until_ (q_mu_); the stream runs on the camera thread.
+    static constexpr double kLiveFps = 10;
+    static constexpr std::chrono::milliseconds kLiveIdle{2000};
+    std::chrono::steady_clock::time_point live_until_{};
+    std::atomic<bool> live_on_{false};
+    std::mutex live_mu_;
+    std::condition_variable live_cv_;
+    cf::camera::Frame live_frame_;  // newest frame (live_mu_)
+    std::uint64_t live_seq_ = 0;    // camera thread
+    std::string live_error_;        // live_mu_
     std::thread thread_;
 };
 
@@ -623,6 +747,31 @@ void Daemon::Impl::register_endpoints() {
                       Response r = Response::binary(std::string(photo.bytes.begin(), photo.bytes.end()), photo.mime.empty() ? "image/jpeg" : photo.mime);
                       r.headers["X-Capture-Ms"] = std::to_string(photo.capture_ms);
                       return r;
+                  }});
+    registry.add({"GET", "/api/camera/live", "camera.live", Access::write,
+                  "The camera's newest live frame as JPEG (?after=SEQ waits for a newer one, max_width, quality); polling keeps the stream on, it stops 2 s after the last request",
+                  [d](const Request& r) {
+                      const auto num = [&](const char* k, long long lo, long long hi, long long def) {
+                          auto it = r.params.find(k);
+                          if (it == r.params.end()) return def;
+                          try {
+                              std::size_t n = 0;
+                              const long long v = std::stoll(it->second, &n);
+                              if (n == it->second.size() && v >= lo && v <= hi) return v;
+                          } catch (const std::exception&) {
+                          }
+                          throw ApiError(400, "bad_request", std::string("camera live ") + k + ": '" + it->second + "' is not an integer in " +
+                                                                 std::to_string(lo) + ".." + std::to_string(hi));
+                      };
+                      const auto after = num("after", 0, std::numeric_limits<long long>::max(), 0);
+                      const auto max_w = num("max_width", 16, 4096, 640);
+                      const auto q = num("quality", 10, 100, 70);
+                      auto f = d->camera->live_jpeg(std::uint64_t(after), int(max_w), int(q), std::chrono::milliseconds(5000));
+                      Response resp = Response::binary(std::move(f.bytes), "image/jpeg");
+                      resp.headers["X-Frame-Seq"] = std::to_string(f.sequence);
+                      resp.headers["X-Image-Size"] = std::to_string(f.width) + "x" + std::to_string(f.height);
+                      resp.headers["Cache-Control"] = "no-store";
+                      return resp;
                   }});
     registry.add({"GET", "/api/jobs", "jobs.list", Access::read, "All jobs (queued, running, the last finished ones)",
                   [d, json_ok](const Request&) {
