@@ -98,6 +98,15 @@ constexpr PlanFile kPlanFiles[] = {
 
 }  // namespace
 
+namespace {
+std::function<void(std::size_t)>& plan_store_hook_slot() {
+    static std::function<void(std::size_t)> hook;
+    return hook;
+}
+}  // namespace
+void set_plan_store_hook_for_tests(std::function<void(std::size_t)> hook) { plan_store_hook_slot() = std::move(hook); }
+std::function<void(std::size_t)> plan_store_hook() { return plan_store_hook_slot(); }
+
 RegistrationParams register_params_from_request(const json& o) {
     if (o.is_null()) return RegistrationParams::defaults();
     if (!o.is_object()) throw bad("register params", "must be a JSON object of registration parameters (docs/registration.md)");
@@ -223,6 +232,7 @@ void register_case_job_kinds(JobQueue& jobs, CaseStore& store, const fs::path& w
         for (const char* k : {"t1_volume_id", "ct_volume_id", "fmri_volume_id", "mask_volume_id"})
             if (p.contains(k)) inputs[k] = p[k];
         json stored = json::array();
+        std::vector<ResultInput> files;
         for (const auto& f : kPlanFiles) {
             const fs::path file = out_dir / f.name;
             if (!fs::exists(file)) continue;
@@ -238,9 +248,18 @@ void register_case_job_kinds(JobQueue& jobs, CaseStore& store, const fs::path& w
                          {"params", {{"brain_mask", p["brain_mask"]}, {"max_triangles", p["max_triangles"]}}},
                          {"seconds", seconds}};
             if (std::string(f.kind) == "plan_json") ri.params["plan"] = plan_json;
-            const ResultRecord r = st->add_result(case_id, std::nullopt, ri, Actor{"jobs", std::nullopt});
-            stored.push_back({{"id", r.id}, {"kind", r.kind}, {"name", r.name}, {"sha256", r.blob.sha256}, {"size_bytes", r.blob.size_bytes}});
+            files.push_back(std::move(ri));
         }
+        // Every file of the revision and the case's state (planned, when it was earlier) in one
+        // store transaction: a crash or an error leaves either the whole revision or none of it.
+        std::vector<ResultRecord> rows;
+        try {
+            rows = st->add_results(case_id, files, CaseState::planned, Actor{"jobs", std::nullopt}, plan_store_hook());
+        } catch (const StoreError& e) {
+            throw std::runtime_error("plan case " + std::to_string(case_id) + ": storing the plan failed, nothing stored: " + e.what());
+        }
+        for (const auto& r : rows)
+            stored.push_back({{"id", r.id}, {"kind", r.kind}, {"name", r.name}, {"sha256", r.blob.sha256}, {"size_bytes", r.blob.size_bytes}});
         log(LogLevel::info, "jobs", "plan of case " + std::to_string(case_id) + " stored as revision " + std::to_string(revision));
         return json{{"case_id", case_id}, {"plan_revision", revision}, {"results", stored}, {"seconds", seconds}, {"plan", plan_json}};
     };

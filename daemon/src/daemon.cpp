@@ -395,7 +395,9 @@ void Daemon::start() {
     register_case_endpoints(d.registry, *d.store, d.cases_dir, d.work_dir, d.cfg.session_ttl_s);
     register_case_data_endpoints(d.registry, *d.store, d.work_dir, d.cfg.max_upload_bytes);
     register_tags_endpoints(d.registry, *d.store, d.work_dir);  // stimulation tags (tags_api.cpp)
-    register_navigation_endpoints(d.registry, *d.store, *d.tracker, NavigationOptions{d.cfg.t1_path});
+    NavigationOptions nav_options{d.cfg.t1_path};
+    nav_options.work_dir = d.work_dir;
+    register_navigation_endpoints(d.registry, *d.store, *d.tracker, nav_options);
     cf::db::CaseStore* store = d.store.get();
     d.http->set_authenticator([store](const std::string& token, Client& c) {
         try {
@@ -832,17 +834,7 @@ void Daemon::Impl::register_endpoints() {
     registry.add({"GET", "/api/render/volume", "render.volume", Access::read,
                   "The rendered MRI's centre and extent (LPS mm) and its brain's box, for placing a camera",
                   [d, json_ok](const Request&) { return json_ok(d->render->volume_json()); }});
-    registry.add({"POST", "/api/render", "render", Access::read, "Render a view off-screen; answers image/jpeg or image/png",
-                  [d](const Request& r) {
-                      const nlohmann::json body = r.body.is_null() ? nlohmann::json::object() : r.body;
-                      RenderedImage img = d->render->render(body);
-                      Response resp = Response::binary(std::move(img.bytes), img.mime);
-                      resp.headers["X-Render-Ms"] = std::to_string(img.render_ms);
-                      resp.headers["X-Renderer"] = img.backend;
-                      resp.headers["X-Image-Size"] = std::to_string(img.width) + "x" + std::to_string(img.height);
-                      return resp;
-                  }});
-    register_render_case_endpoints(registry, *render, *store, *jobs, work_dir);  // pick, fused view, job downloads
+    register_render_case_endpoints(registry, *render, *store, *jobs, work_dir);  // render (per case too), pick, fused view, histograms, job downloads
 }
 
 }  // namespace cf::daemon

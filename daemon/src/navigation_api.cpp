@@ -5,6 +5,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <map>
 #include <mutex>
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
@@ -13,6 +14,7 @@
 #include <thread>
 
 #include "case_api.hpp"
+#include "case_volumes.hpp"
 #include "cortexfuse/core/error.hpp"
 #include "cortexfuse/core/navigation.hpp"
 #include "cortexfuse/core/volume.hpp"
@@ -311,6 +313,62 @@ private:
     float lo_ = 0, hi_ = 1;
 };
 
+/// The 1st/99th percentile window of a volume (every 7th voxel), as SliceVolume uses.
+std::pair<float, float> slice_window(const cf::Volume& v) {
+    std::vector<float> s;
+    for (std::size_t i = 0; i < v.voxels.size(); i += 7) s.push_back(v.voxels[i]);
+    if (s.empty()) return {0.f, 1.f};
+    std::nth_element(s.begin(), s.begin() + long(s.size() / 100), s.end());
+    const float lo = s[s.size() / 100];
+    std::nth_element(s.begin(), s.begin() + long(s.size() * 99 / 100), s.end());
+    float hi = s[s.size() * 99 / 100];
+    if (!(hi > lo)) hi = lo + 1;
+    return {lo, hi};
+}
+
+/// The volume slices are cut from: data.t1, or with ?case_id= (and ?volume_id=) the case's
+/// own stored volume (its newest T1 by default), loaded through a small cache.
+struct SliceSource {
+    std::shared_ptr<SliceVolume> bundled;
+    std::shared_ptr<CaseVolumeCache> cases;
+    cf::db::CaseStore* store = nullptr;
+    std::mutex mu;
+    std::map<std::string, std::pair<float, float>> windows;  // by volume key
+    std::shared_ptr<const cf::Volume> get(const Request& r, float& lo, float& hi, std::string& source) {
+        std::optional<std::int64_t> case_id, volume_id;
+        for (const char* k : {"case_id", "volume_id"}) {
+            const auto it = r.params.find(k);
+            if (it == r.params.end()) continue;
+            std::size_t n = 0;
+            long long v = 0;
+            try {
+                v = std::stoll(it->second, &n);
+            } catch (const std::exception&) {
+                n = 0;
+            }
+            if (n != it->second.size() || v < 1) throw bad(std::string("slices ") + k, "'" + it->second.substr(0, 40) + "' is not a positive integer");
+            (std::string(k) == "case_id" ? case_id : volume_id) = v;
+        }
+        if (volume_id && !case_id) throw bad("slices volume_id", "given without case_id");
+        if (!case_id) {
+            source = "data.t1";
+            return bundled->get(lo, hi);
+        }
+        const auto ref = resolve_case_volume(*store, *case_id, volume_id, "navigation slices");
+        auto loaded = cases->get(ref);
+        {
+            std::lock_guard lk(mu);
+            auto it = windows.find(ref.key());
+            if (it == windows.end()) it = windows.emplace(ref.key(), slice_window(loaded->volume)).first;
+            lo = it->second.first;
+            hi = it->second.second;
+        }
+        source = "case " + std::to_string(*case_id) + " " + ref.source;
+        // Aliasing: the volume lives as long as its loaded entry.
+        return std::shared_ptr<const cf::Volume>(loaded, &loaded->volume);
+    }
+};
+
 /// Trilinear sample at a continuous index; 0 outside.
 float sample(const cf::Volume& v, const Eigen::Vector3d& ijk) {
     const auto& d = v.geom.dims;
@@ -437,7 +495,10 @@ void register_navigation_endpoints(EndpointRegistry& reg, CaseStore& store, Trac
     CaseStore* st = &store;
     TrackerModule* tr = &tracker;
     auto tip_state = std::make_shared<PointerTip>(Eigen::Vector3d(options.tip_pointer_mm[0], options.tip_pointer_mm[1], options.tip_pointer_mm[2]));
-    auto slices = std::make_shared<SliceVolume>(options.t1_path);
+    auto slices = std::make_shared<SliceSource>();
+    slices->bundled = std::make_shared<SliceVolume>(options.t1_path);
+    slices->store = st;
+    slices->cases = std::make_shared<CaseVolumeCache>(store, options.work_dir / "slice_volumes", 2);
     // Recording and deleting read the newest list of recorded fiducials and store the next
     // one: two at once must not both build on the same list (one would be lost).
     auto list_mu = std::make_shared<std::mutex>();
@@ -485,7 +546,8 @@ void register_navigation_endpoints(EndpointRegistry& reg, CaseStore& store, Trac
                      return v;
                  };
                  float lo = 0, hi = 1;
-                 const auto vol = slices->get(lo, hi);
+                 std::string source;
+                 const auto vol = slices->get(r, lo, hi, source);
                  const Eigen::Vector3d c = vol->geom.center_world_mm();
                  const Eigen::Vector3d p(num("x", c.x(), -5000, 5000), num("y", c.y(), -5000, 5000), num("z", c.z(), -5000, 5000));
                  const int size = int(num("size", 256, 32, 1024));
@@ -497,14 +559,16 @@ void register_navigation_endpoints(EndpointRegistry& reg, CaseStore& store, Trac
                  cv::imencode(fmt == "png" ? ".png" : ".jpg", img, buf, fmt == "png" ? std::vector<int>{} : std::vector<int>{cv::IMWRITE_JPEG_QUALITY, 85});
                  Response resp = Response::binary(std::string(buf.begin(), buf.end()), fmt == "png" ? "image/png" : "image/jpeg");
                  resp.headers["X-Slice-Layout"] = "axial,coronal,sagittal";
+                 resp.headers["X-Slice-Volume"] = source;
                  resp.headers["Cache-Control"] = "no-store";
                  return resp;
              }});
     reg.add({"GET", "/api/navigation/suggested-fiducials", "navigation.suggested_fiducials", Access::read,
              "Skin points on the MRI (forehead, its left and right, left, right, vertex) to start a fiducial list from",
-             [slices](const Request&) {
+             [slices](const Request& r) {
                  float lo = 0, hi = 1;
-                 const auto vol = slices->get(lo, hi);
+                 std::string source;
+                 const auto vol = slices->get(r, lo, hi, source);
                  return ok({{"fiducials", suggested_fiducials(*vol, lo, hi)}});
              }});
     reg.add({"POST", "/api/tracker/sim/pointer", "tracker.sim_pointer", Access::write,

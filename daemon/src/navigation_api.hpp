@@ -29,6 +29,8 @@ struct NavigationOptions {
     /// put the tool's origin at the calibrated tip, as the simulator's pointer does: zero.
     /// POST /api/navigation/pivot {apply: true} replaces it (in memory) while the daemon runs.
     double tip_pointer_mm[3] = {0, 0, 0};
+    /// Where a case's stored volumes are staged for the reader (slices with ?case_id=).
+    std::filesystem::path work_dir = std::filesystem::temp_directory_path();
 };
 
 void register_navigation_endpoints(EndpointRegistry& reg, cf::db::CaseStore& store, TrackerModule& tracker,

@@ -4,6 +4,8 @@
 
 #include "case_api.hpp"
 #include "case_jobs.hpp"
+#include "case_volumes.hpp"
+#include "cortexfuse/core/transfer_function.hpp"
 #include "cortexfuse/core/case.hpp"
 #include "cortexfuse/core/error.hpp"
 #include "cortexfuse/daemon/endpoints.hpp"
@@ -110,18 +112,153 @@ std::pair<int, int> fitted_size(const json& K, int max_w, int max_h) {
     return {std::max(16, int(std::lround(w * s))), std::max(16, int(std::lround(h * s)))};
 }
 
+/// A render source for a case volume, loaded through the shared cache.
+std::shared_ptr<const CaseRenderSource> render_source(const std::shared_ptr<CaseVolumeCache>& cache, const CaseVolumeRef& ref) {
+    auto src = std::make_shared<CaseRenderSource>();
+    src->key = ref.key();
+    src->source = "case " + std::to_string(ref.case_id) + " " + ref.source;
+    src->load = [cache, ref] { return cache->get(ref); };
+    return src;
+}
+
+/// The case part of a render or pick request: `case_id` (and `volume_id`) name the case's
+/// volume, `modalities` the layers of a multimodal view. Both are taken out of `body` (the
+/// render module reads the rest); `modalities` stays for the module to read each layer's look.
+struct CaseView {
+    std::shared_ptr<const CaseRenderSource> src;
+    std::vector<ModalityLayerSource> layers;
+};
+CaseView case_view(CaseStore& st, const std::shared_ptr<CaseVolumeCache>& cache, json& body, const std::string& what) {
+    CaseView v;
+    if (!body.is_object()) return v;
+    std::optional<std::int64_t> case_id, volume_id;
+    for (const char* k : {"case_id", "volume_id"})
+        if (body.contains(k)) {
+            if (!body[k].is_number_integer() || body[k].get<std::int64_t>() < 1) throw ApiError(400, "bad_request", what + " " + k + ": must be a positive integer");
+            (std::string(k) == "case_id" ? case_id : volume_id) = body[k].get<std::int64_t>();
+            body.erase(k);
+        }
+    if (volume_id && !case_id) throw ApiError(400, "bad_request", what + " volume_id: given without case_id");
+    if (body.contains("modalities") && !case_id)
+        throw ApiError(400, "bad_request", what + " modalities: need case_id (the layers are the case's T1 and its plan's CT/fMRI)");
+    if (!case_id) return v;
+    const CaseVolumeRef t1 = resolve_case_volume(st, *case_id, volume_id, what);
+    v.src = render_source(cache, t1);
+    if (body.contains("modalities") && body["modalities"].is_array()) {
+        const json& m = body["modalities"];
+        for (std::size_t i = 0; i < m.size(); ++i) {
+            const std::string f = what + " modalities[" + std::to_string(i) + "].name";
+            if (!m[i].is_object() || !m[i].contains("name") || !m[i]["name"].is_string())
+                throw ApiError(400, "bad_request", f + ": missing (t1, ct or fmri)");
+            const std::string name = m[i]["name"].get<std::string>();
+            if (name == "t1") v.layers.push_back({name, v.src});
+            else if (name == "ct" || name == "fmri") v.layers.push_back({name, render_source(cache, resolve_plan_volume(st, *case_id, name, f))});
+            else throw ApiError(400, "bad_request", f + ": unknown modality '" + name.substr(0, 40) + "' (t1, ct or fmri)");
+        }
+    }
+    return v;
+}
+
+/// Voxel counts over `bins` equal bins of normalized intensity x = (v - lo) / (hi - lo) in
+/// [0, 1] (x = 1 in the last bin), split by the mask (inside / outside; all outside without
+/// one), and those below 0 or above 1.
+json histogram_json(const Volume& v, const LabelVolume* mask, std::array<double, 2> range, int bins) {
+    std::vector<std::uint64_t> in(std::size_t(bins), 0), out(std::size_t(bins), 0);
+    std::uint64_t below_in = 0, below_out = 0, above_in = 0, above_out = 0;
+    const double lo = range[0], span = range[1] - range[0];
+    for (std::size_t i = 0; i < v.voxels.size(); ++i) {
+        const bool inside = mask && mask->voxels[i];
+        const double x = span > 0 ? (double(v.voxels[i]) - lo) / span : 0.0;
+        if (x < 0) ++(inside ? below_in : below_out);
+        else if (x > 1) ++(inside ? above_in : above_out);
+        else (inside ? in : out)[std::min<std::size_t>(std::size_t(bins) - 1, std::size_t(x * bins))]++;
+    }
+    json j{{"range", {range[0], range[1]}}, {"outside", out}, {"below_outside", below_out}, {"above_outside", above_out}};
+    if (mask) {
+        j["inside"] = in;
+        j["below_inside"] = below_in;
+        j["above_inside"] = above_in;
+    }
+    return j;
+}
+
+Response image_response(RenderedImage img, const std::string& source) {
+    Response resp = Response::binary(std::move(img.bytes), img.mime);
+    resp.headers["X-Render-Ms"] = std::to_string(img.render_ms);
+    resp.headers["X-Renderer"] = img.backend;
+    resp.headers["X-Image-Size"] = std::to_string(img.width) + "x" + std::to_string(img.height);
+    if (!source.empty()) resp.headers["X-Render-Volume"] = source;
+    return resp;
+}
+
 }  // namespace
 
 void register_render_case_endpoints(EndpointRegistry& reg, RenderModule& render, CaseStore& store, JobQueue& jobs, const fs::path& work_dir) {
     RenderModule* rm = &render;
     CaseStore* st = &store;
     JobQueue* jq = &jobs;
+    // Loaded case volumes (float voxels and brain mask, ~80 MiB for a 256^3 T1), shared by
+    // per-case renders (loaded once per prepared renderer) and the histograms.
+    auto cache = std::make_shared<CaseVolumeCache>(store, work_dir / "case_volumes", 3);
+
+    reg.add({"POST", "/api/render", "render", Access::read,
+             "Render a view off-screen (the daemon's MRI, or case_id's volume; modalities for a multimodal view); answers image/jpeg or image/png",
+             [rm, st, cache](const Request& r) {
+                 return guarded([&] {
+                     json body = r.body.is_null() ? json::object() : r.body;
+                     CaseView v = case_view(*st, cache, body, "render");
+                     RenderedImage img = rm->render(body, v.src, v.layers);
+                     return image_response(std::move(img), v.src ? v.src->source : std::string());
+                 });
+             }});
+
+    reg.add({"GET", "/api/cases/{id}/volumes/{volume_id}/histogram", "cases.volume_histogram", Access::read,
+             "Intensity histogram of a case volume in the transfer functions' normalized units (?bins=8..1024), inside and outside its brain mask",
+             [st, cache](const Request& r) {
+                 return guarded([&] {
+                     const std::int64_t id = case_id_param(r);
+                     const std::int64_t vid = case_id_param(r, "volume_id");
+                     int bins = 256;
+                     if (auto it = r.params.find("bins"); it != r.params.end()) {
+                         std::size_t n = 0;
+                         long long b = -1;
+                         try {
+                             b = std::stoll(it->second, &n);
+                         } catch (const std::exception&) {
+                             n = 0;
+                         }
+                         if (n != it->second.size() || b < 8 || b > 1024)
+                             throw ApiError(400, "bad_request", "histogram bins: '" + it->second.substr(0, 20) + "' must be an integer 8..1024");
+                         bins = int(b);
+                     }
+                     const auto vol = cache->get(resolve_case_volume(*st, id, vid, "histogram"));
+                     const LabelVolume* m = vol->brain_mask ? &*vol->brain_mask : nullptr;
+                     json norm{{"whole", histogram_json(vol->volume, m, robust_range(vol->volume, nullptr), bins)}};
+                     norm["brain_only"] = m ? histogram_json(vol->volume, m, robust_range(vol->volume, m), bins) : json(nullptr);
+                     return ok({{"case_id", id},
+                                {"volume_id", vid},
+                                {"modality", vol->ref.modality},
+                                {"bins", bins},
+                                {"voxels", vol->volume.voxels.size()},
+                                {"brain_mask", vol->ref.mask_source.empty() ? json(nullptr) : json(vol->ref.mask_source)},
+                                {"x", "normalized transfer-function units: bin b holds (intensity - range[0]) / (range[1] - range[0]) in [b, b + 1) / bins"},
+                                {"normalizations", norm}});
+                 });
+             }});
 
     reg.add({"POST", "/api/render/pick", "render.pick", Access::read,
              "The world point (LPS mm) under a pixel of a rendered view: the POST /api/render fields plus pixel [u, v]; 422 when no surface is there",
-             [rm](const Request& r) {
+             [rm, st, cache](const Request& r) {
                  if (r.body.is_null()) throw ApiError(400, "bad_request", "render pick: the request must be a JSON object with pixel [u, v]");
-                 return ok(rm->pick(r.body));
+                 return guarded([&] {
+                     json body = r.body;
+                     if (body.is_object() && body.contains("modalities"))
+                         throw ApiError(400, "bad_request", "render pick modalities: picks are on the case's T1 surface; leave modalities out");
+                     CaseView v = case_view(*st, cache, body, "render pick");
+                     json a = rm->pick(body, v.src);
+                     if (v.src) a["volume"] = v.src->source;
+                     return ok(a);
+                 });
              }});
 
     reg.add({"GET", "/api/cases/{id}/fused/camera", "cases.fused_camera", Access::read,
@@ -142,7 +279,7 @@ void register_render_case_endpoints(EndpointRegistry& reg, RenderModule& render,
 
     reg.add({"POST", "/api/cases/{id}/fused", "cases.fused", Access::read,
              "The case's photo-textured brain surface (plan + registration + photo + ROI) over its volume rendering; the POST /api/render fields plus surface_opacity, registration_id",
-             [rm, st, work_dir](const Request& r) {
+             [rm, st, work_dir, cache](const Request& r) {
                  return guarded([&] {
                      const std::int64_t id = case_id_param(r);
                      json body = r.body.is_null() ? json::object() : r.body;
@@ -158,16 +295,7 @@ void register_render_case_endpoints(EndpointRegistry& reg, RenderModule& render,
                      }
                      if (!body.contains("camera") && !body.contains("focal_px")) body["camera"] = f.photo.intrinsics;
                      auto src = std::make_shared<FusedSource>();
-                     src->volume_key = f.t1.blob.sha256;
-                     src->volume_name = f.t1.original_name;
-                     const std::string t1_sha = f.t1.blob.sha256;
-                     src->volume_bytes = [st, t1_sha] { return st->read_blob(t1_sha); };
-                     if (f.mask_volume || f.plan_mask) {
-                         const std::string sha = f.mask_volume ? f.mask_volume->blob.sha256 : f.plan_mask->blob.sha256;
-                         src->mask_key = sha;
-                         src->mask_name = f.mask_volume ? "mask_" + f.mask_volume->original_name : std::string("brain_mask.nii.gz");
-                         src->mask_bytes = [st, sha] { return st->read_blob(sha); };
-                     }
+                     src->volume = render_source(cache, resolve_case_volume(*st, id, f.t1.id, "fused"));
                      const std::string surf_sha = f.surface.blob.sha256, photo_sha = f.photo.blob.sha256;
                      src->surface_key = surf_sha;
                      src->surface_ply_bytes = [st, surf_sha] { return st->read_blob(surf_sha); };
@@ -178,11 +306,9 @@ void register_render_case_endpoints(EndpointRegistry& reg, RenderModule& render,
                      src->texture_key = photo_sha + "/" + surf_sha + "/" + (f.roi ? std::to_string(f.roi->id) : "-") + "/" +
                                         std::to_string(f.reg.id);
                      src->scratch_dir = (work_dir / ("fused_" + std::to_string(id))).string();
+                     const std::string source = src->volume->source;
                      RenderedImage img = rm->fused(body, src);
-                     Response resp = Response::binary(std::move(img.bytes), img.mime);
-                     resp.headers["X-Render-Ms"] = std::to_string(img.render_ms);
-                     resp.headers["X-Renderer"] = img.backend;
-                     resp.headers["X-Image-Size"] = std::to_string(img.width) + "x" + std::to_string(img.height);
+                     Response resp = image_response(std::move(img), source);
                      resp.headers["X-Registration-Id"] = std::to_string(f.reg.id);
                      return resp;
                  });

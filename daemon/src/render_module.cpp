@@ -19,10 +19,14 @@
 #include "cortexfuse/core/pose.hpp"
 #include "cortexfuse/core/renderer.hpp"
 #include "cortexfuse/core/transfer_function.hpp"
+#include "cortexfuse/core/fusion.hpp"
 #include "cortexfuse/core/volume.hpp"
+#include "case_volumes.hpp"
 #include "cortexfuse/daemon/endpoints.hpp"
 #include "cortexfuse/daemon/log.hpp"
+#include "cortexfuse/render/gl_renderer.hpp"
 #include "cortexfuse/render/renderer_factory.hpp"
+#include <list>
 
 namespace cf::daemon {
 
@@ -166,6 +170,15 @@ struct RenderModule::Job {
     Eigen::Vector2d pixel{0, 0};   // pick
     double surface_opacity = 0.5;  // fused
     std::shared_ptr<const FusedSource> fused_src;
+    std::shared_ptr<const CaseRenderSource> case_src;  // per-case view (else data.t1)
+    struct Layer {
+        std::string name;
+        std::shared_ptr<const CaseRenderSource> src;
+        TransferFunction tf;
+        double weight = 1;
+        bool visible = true;
+    };
+    std::vector<Layer> layers;  // multimodal view: [0] the reference
     std::promise<RenderedImage> result;
     std::promise<nlohmann::json> pick_result;
 };
@@ -179,10 +192,19 @@ struct RenderModule::Scene {
     std::unique_ptr<Renderer> masked, whole;
     std::string last_view_key, last_backend;
     std::vector<float> last_depth_mm;
+    /// A case volume's renderers (made on first use: masked for brain_only when it has a mask,
+    /// whole otherwise), most recently used first, at most kCaseRenderersCached.
+    struct PreparedCase {
+        std::string key;
+        std::shared_ptr<const LoadedCaseVolume> vol;
+        std::unique_ptr<Renderer> masked, whole;
+    };
+    std::list<PreparedCase> cases;
+    /// The last multimodal scene (one GL fusion renderer, its layers' keys in order).
+    std::string fusion_key;
+    std::unique_ptr<FusionRenderer> fusion;
+    Eigen::Vector3d fusion_centre_mm = Eigen::Vector3d::Zero();
     // fused
-    std::string case_volume_key;
-    std::unique_ptr<Renderer> case_masked, case_whole;
-    bool case_has_mask = false;
     std::string surface_key, texture_key;
     SurfaceMesh mesh;
     TextureMapping mapping;
@@ -279,17 +301,81 @@ void RenderModule::enqueue(const std::shared_ptr<Job>& job) {
     cv_.notify_all();
 }
 
-RenderedImage RenderModule::render(const nlohmann::json& r) {
-    auto job = parse_job(r, {});
+namespace {
+/// The default look of each modality of a multimodal view.
+std::string default_preset(const std::string& modality) {
+    return modality == "ct" ? "ct_bone" : modality == "fmri" ? "fmri_hot" : "cortex_t1";
+}
+}  // namespace
+
+RenderedImage RenderModule::render(const nlohmann::json& r, std::shared_ptr<const CaseRenderSource> src,
+                                   std::vector<ModalityLayerSource> layers) {
+    auto job = parse_job(r, {"modalities"});
+    job->case_src = std::move(src);
+    if (job->case_src) job->view_key += "|" + job->case_src->key;
+    if (r.contains("modalities")) {
+        const auto& m = r["modalities"];
+        if (!m.is_array() || m.empty() || m.size() > std::size_t(FusionRenderer::kMaxLayers))
+            throw bad("modalities", "must be a list of 1.." + std::to_string(FusionRenderer::kMaxLayers) +
+                                        " {name, preset | tf, weight, visible}");
+        if (layers.size() != m.size()) throw bad("modalities", "need case_id (the case's volumes and plan)");
+        for (std::size_t i = 0; i < m.size(); ++i) {
+            const std::string f = "modalities[" + std::to_string(i) + "]";
+            const auto& e = m[i];
+            if (!e.is_object()) throw bad(f, "must be an object {name, preset | tf, weight, visible}");
+            for (auto it = e.begin(); it != e.end(); ++it)
+                if (it.key() != "name" && it.key() != "preset" && it.key() != "tf" && it.key() != "transfer_function" &&
+                    it.key() != "weight" && it.key() != "visible")
+                    throw bad(f + "." + it.key(), "unknown field");
+            Job::Layer L;
+            L.name = layers[i].name;
+            L.src = layers[i].volume;
+            for (const auto& o : job->layers)
+                if (o.name == L.name) throw bad(f + ".name", "'" + L.name + "' is listed twice");
+            // transfer_function: a preset name or core's TF JSON; tf / preset as in the request.
+            nlohmann::json tfj = e.contains("transfer_function") ? e["transfer_function"] : e.contains("tf") ? e["tf"] : nlohmann::json(nullptr);
+            if (int(e.contains("transfer_function")) + int(e.contains("tf")) + int(e.contains("preset")) > 1)
+                throw bad(f, "give one of transfer_function, tf or preset");
+            if (e.contains("preset")) tfj = e["preset"];
+            if (tfj.is_null()) tfj = default_preset(L.name);
+            if (tfj.is_string()) {
+                const auto names = preset_names();
+                const std::string n = tfj.get<std::string>();
+                if (std::find(names.begin(), names.end(), n) == names.end()) throw bad(f + ".transfer_function", "unknown preset '" + n.substr(0, 40) + "'");
+                L.tf = preset_transfer_function(n);
+            } else {
+                try {
+                    L.tf = parse_request_tf(tfj);
+                } catch (const ApiError& ex) {
+                    std::string msg = ex.what();
+                    const std::string pre = "render tf";
+                    if (msg.rfind(pre, 0) == 0) msg = "render " + f + ".transfer_function" + msg.substr(pre.size());
+                    throw ApiError(400, "bad_request", msg);
+                }
+            }
+            if (e.contains("weight")) {
+                if (!e["weight"].is_number()) throw bad(f + ".weight", "must be a number");
+                L.weight = e["weight"].get<double>();
+                if (!(L.weight >= 0 && L.weight <= 1)) throw bad(f + ".weight", "is out of range 0..1");
+            }
+            if (e.contains("visible") && !e["visible"].is_boolean()) throw bad(f + ".visible", "must be true or false");
+            L.visible = e.value("visible", true);
+            job->layers.push_back(std::move(L));
+        }
+        // The reference layer (surface depth, shading) is the T1 when it is listed.
+        std::stable_partition(job->layers.begin(), job->layers.end(), [](const Job::Layer& L) { return L.name == "t1"; });
+    }
     auto fut = job->result.get_future();
     enqueue(job);
     return fut.get();  // rethrows what the render thread set
 }
 
-nlohmann::json RenderModule::pick(const nlohmann::json& r) {
+nlohmann::json RenderModule::pick(const nlohmann::json& r, std::shared_ptr<const CaseRenderSource> src) {
     if (!r.is_object()) throw ApiError(400, "bad_request", "render pick: the request must be a JSON object");
     auto job = parse_job(r, {"pixel"});
     job->mode = Job::Mode::pick;
+    job->case_src = std::move(src);
+    if (job->case_src) job->view_key += "|" + job->case_src->key;
     if (!r.contains("pixel")) throw bad("pixel", "missing: give the pixel [u, v] of the view to pick");
     const auto& p = r["pixel"];
     if (!p.is_array() || p.size() != 2 || !p[0].is_number() || !p[1].is_number() || !std::isfinite(p[0].get<double>()) ||
@@ -382,24 +468,79 @@ void RenderModule::loop() {
             error_ = e.what();
         }
     }
-    // The case's volume and textured surface of a fused view (cached by their keys).
-    auto prepare_fused = [&](const FusedSource& src) {
-        if (sc.case_volume_key != src.volume_key + "/" + src.mask_key) {
-            sc.case_masked.reset();
-            sc.case_whole.reset();
-            sc.case_volume_key.clear();
-            RemoveDir rm{src.scratch_dir};
-            const Volume v = load_volume(stage_file(src.scratch_dir, src.volume_name, src.volume_bytes()));
-            std::optional<LabelVolume> m;
-            if (src.mask_bytes) {
-                m = load_mask(stage_file(src.scratch_dir, src.mask_name, src.mask_bytes()));
-                if (!m->geom.same_grid(v.geom)) m = resample_nearest(*m, v.geom);
-            }
-            sc.case_whole = make(v, nullptr);
-            if (m) sc.case_masked = make(v, &*m);
-            sc.case_has_mask = m.has_value();
-            sc.case_volume_key = src.volume_key + "/" + src.mask_key;
+    // A case volume's renderer (LRU of prepared volumes by key): masked for brain_only when the
+    // case has a brain mask, else the whole volume.
+    auto case_renderer = [&](const CaseRenderSource& src, bool brain_only, Eigen::Vector3d& centre_mm) -> Renderer* {
+        auto it = std::find_if(sc.cases.begin(), sc.cases.end(), [&](const Scene::PreparedCase& p) { return p.key == src.key; });
+        if (it == sc.cases.end()) {
+            Scene::PreparedCase pc;
+            pc.key = src.key;
+            pc.vol = src.load();
+            sc.cases.push_front(std::move(pc));
+            while (sc.cases.size() > kCaseRenderersCached) sc.cases.pop_back();
+            it = sc.cases.begin();
+        } else if (it != sc.cases.begin()) {
+            sc.cases.splice(sc.cases.begin(), sc.cases, it);
+            it = sc.cases.begin();
         }
+        centre_mm = it->vol->volume.geom.center_world_mm();
+        const bool masked = brain_only && it->vol->brain_mask.has_value();
+        auto& rr = masked ? it->masked : it->whole;
+        if (!rr) {
+            rr = make(it->vol->volume, masked ? &*it->vol->brain_mask : nullptr);
+            std::lock_guard lk(mu_);
+            ++case_preparations_;
+        }
+        return rr.get();
+    };
+    // The multimodal scene of a job's layers: one GL fusion renderer, made again only when the
+    // layers' volumes (or brain_only, which masks the T1 layer) change; their transfer
+    // functions, weights and visibility are settings of the kept scene (no upload).
+    auto fusion_renderer = [&](const Job& job) -> FusionRenderer* {
+        std::string key = job.brain_only ? "brain|" : "whole|";
+        for (const auto& L : job.layers) key += L.name + "=" + L.src->key + ";";
+        if (sc.fusion_key != key || !sc.fusion) {
+            sc.fusion.reset();
+            sc.fusion_key.clear();
+            if (kind == RendererKind::cpu)
+                throw ApiError(409, "conflict", "render modalities: multimodal views need the GL renderer (renderer.kind is cpu)");
+            std::unique_ptr<FusionRenderer> fr;
+            try {
+                fr = make_gl_fusion_renderer();
+            } catch (const GlError& e) {
+                throw ApiError(409, "conflict", std::string("render modalities: multimodal views need the GL renderer, and none can be made: ") + e.what());
+            }
+            for (const auto& L : job.layers) {
+                const auto vol = L.src->load();
+                const bool masked = L.name == "t1" && job.brain_only && vol->brain_mask;
+                if (&L == &job.layers.front()) sc.fusion_centre_mm = vol->volume.geom.center_world_mm();
+                fr->add_layer(vol->volume, L.tf, masked ? &*vol->brain_mask : nullptr, LayerSettings{L.weight, L.visible, Pose::Identity()});
+            }
+            {
+                std::lock_guard lk(mu_);
+                fusion_uploads_ += std::uint64_t(fr->volume_uploads());
+                ++case_preparations_;
+                backend_ = fr->name();
+            }
+            sc.fusion = std::move(fr);
+            sc.fusion_key = key;
+        }
+        const int before = sc.fusion->volume_uploads();
+        for (std::size_t i = 0; i < job.layers.size(); ++i) {
+            TransferFunction tf = job.layers[i].tf;
+            for (auto& p : tf.opacity) p[1] *= job.opacity;
+            sc.fusion->set_layer_transfer_function(int(i), tf);
+            LayerSettings ls = sc.fusion->layer_settings(int(i));
+            ls.weight = job.layers[i].weight;
+            ls.visible = job.layers[i].visible;
+            sc.fusion->set_layer_settings(int(i), ls);
+        }
+        std::lock_guard lk(mu_);
+        fusion_uploads_ += std::uint64_t(sc.fusion->volume_uploads() - before);
+        return sc.fusion.get();
+    };
+    // The textured surface of a fused view (cached by their keys).
+    auto prepare_fused = [&](const FusedSource& src) {
         if (sc.surface_key != src.surface_key) {
             sc.surface_key.clear();
             sc.texture_key.clear();
@@ -440,14 +581,29 @@ void RenderModule::loop() {
         try {
             if (!sc.volume) throw ApiError(503, "unavailable", "render: the volume could not be loaded: " + error_);
             Renderer* r = nullptr;
-            const Volume* vol = &*sc.volume;
+            Eigen::Vector3d centre_mm = sc.volume->geom.center_world_mm();
+            bool layered = false;  // the multimodal scene holds the transfer functions
             if (job->mode == Job::Mode::fused) {
                 try {
+                    r = case_renderer(*job->fused_src->volume, job->brain_only, centre_mm);
                     prepare_fused(*job->fused_src);
                 } catch (const InputError& e) {
                     throw ApiError(422, "unprocessable", std::string("fused: ") + e.what());
                 }
-                r = (job->brain_only && sc.case_masked) ? sc.case_masked.get() : sc.case_whole.get();
+            } else if (!job->layers.empty()) {
+                try {
+                    r = fusion_renderer(*job);
+                } catch (const InputError& e) {
+                    throw ApiError(422, "unprocessable", std::string("render modalities: ") + e.what());
+                }
+                centre_mm = sc.fusion_centre_mm;
+                layered = true;
+            } else if (job->case_src) {
+                try {
+                    r = case_renderer(*job->case_src, job->brain_only, centre_mm);
+                } catch (const InputError& e) {
+                    throw ApiError(422, "unprocessable", "render case volume: " + std::string(e.what()));
+                }
             } else {
                 const bool use_mask = job->brain_only || !sc.mask.has_value();  // 'masked' is the maskless one without a mask
                 auto& rr = use_mask ? sc.masked : sc.whole;
@@ -465,7 +621,7 @@ void RenderModule::loop() {
                 K.cx = (job->width - 1) * 0.5;
                 K.cy = (job->height - 1) * 0.5;
             }
-            const Pose T = job->pose ? *job->pose : standard_view(job->view, vol->geom.center_world_mm(), job->distance_mm);
+            const Pose T = job->pose ? *job->pose : standard_view(job->view, centre_mm, job->distance_mm);
             RenderOptions ro;
             ro.sample_distance_mm = job->sample_mm;
             ro.want_depth = true;  // kept for picks of this view (the CPU caster has it anyway; GL reads one more buffer)
@@ -475,7 +631,7 @@ void RenderModule::loop() {
                 const int v = std::clamp(int(std::lround(job->pixel.y())), 0, K.height - 1);
                 const bool reuse = sc.last_view_key == job->view_key && sc.last_depth_mm.size() == std::size_t(K.width) * K.height;
                 if (!reuse) {
-                    r->set_transfer_function(tf);
+                    if (!layered) r->set_transfer_function(tf);
                     ro.want_rgb = false;
                     RenderImage img;
                     r->render(K, T, ro, img);
@@ -499,7 +655,7 @@ void RenderModule::loop() {
                                             {"renderer", sc.last_backend}});
                 continue;
             }
-            r->set_transfer_function(tf);
+            if (!layered) r->set_transfer_function(tf);
             RenderImage img;
             cv::Mat bgr;
             const auto t0 = Clock::now();
@@ -568,9 +724,20 @@ nlohmann::json RenderModule::status_json() const {
                      {"renders", renders_},
                      {"failures", failures_},
                      {"last_render_ms", last_render_ms_},
+                     {"case_preparations", case_preparations_},
+                     {"fusion_volume_uploads", fusion_uploads_},
                      {"queued", queue_.size()}};
     if (!error_.empty()) j["error"] = error_;
     return j;
+}
+
+std::uint64_t RenderModule::fusion_volume_uploads() const {
+    std::lock_guard lk(mu_);
+    return fusion_uploads_;
+}
+std::uint64_t RenderModule::case_preparations() const {
+    std::lock_guard lk(mu_);
+    return case_preparations_;
 }
 
 bool RenderModule::healthy() const {

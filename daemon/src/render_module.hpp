@@ -21,6 +21,27 @@
 
 namespace cf::daemon {
 
+struct LoadedCaseVolume;
+
+/// A case's stored volume for a per-case view (POST /api/render with case_id, the pick, the
+/// fused view): `key` names its content (volume and mask hashes); `load` gives the loaded volume
+/// and its brain mask and is called on the render thread only when no renderer for `key` is
+/// prepared (the render thread keeps the prepared renderers of the last
+/// RenderModule::kCaseRenderersCached keys, least recently used dropped first).
+struct CaseRenderSource {
+    std::string key;
+    std::string source;  ///< "case 3 volume 7 (T1)": the answer's X-Render-Volume header
+    std::function<std::shared_ptr<const LoadedCaseVolume>()> load;
+};
+
+/// One layer of a multimodal render (request field `modalities`): the case's T1 or a plan
+/// volume on the T1's grid, with its own transfer function, weight and visibility. Settings
+/// change without the layer's volume being uploaded again.
+struct ModalityLayerSource {
+    std::string name;  ///< "t1", "ct", "fmri"
+    std::shared_ptr<const CaseRenderSource> volume;
+};
+
 struct RenderedImage {
     std::string bytes;  ///< encoded JPEG or PNG
     std::string mime;
@@ -33,9 +54,9 @@ struct RenderedImage {
 /// from the case store by the caller; the render thread loads and caches what it names.
 /// `*_bytes` read the stored files (called on the render thread only when the key is not cached).
 struct FusedSource {
-    std::string volume_key, mask_key, surface_key, texture_key;  ///< sha256 of each; texture: photo+roi+pose
-    std::string volume_name, mask_name;                           ///< file names (the reader picks by extension)
-    std::function<std::string()> volume_bytes, mask_bytes, surface_ply_bytes, photo_bytes;  ///< mask_bytes may be empty
+    std::shared_ptr<const CaseRenderSource> volume;  ///< the case's T1 and brain mask
+    std::string surface_key, texture_key;            ///< sha256 of the surface; texture: photo+roi+pose
+    std::function<std::string()> surface_ply_bytes, photo_bytes;
     nlohmann::json photo_intrinsics;  ///< case.json camera of the photo
     nlohmann::json roi;               ///< roi.json, or null (then the whole visible surface is textured)
     Pose T_registered;                ///< the registration's T_camera_from_world (texture mapping)
@@ -56,14 +77,26 @@ public:
     /// "anterior", "posterior", "superior", "inferior") and distance_mm, or T_camera_from_world
     /// (4x4 rows, LPS mm -> camera mm); camera (intrinsics JSON as in case.json) or focal_px;
     /// format "jpeg" | "png"; quality (10..100).
-    RenderedImage render(const nlohmann::json& request);
+    /// With `src`: the case's volume instead of data.t1 (brain_only: its brain mask, when it has
+    /// one). `request` may also hold `modalities` (with `layers`: one per named modality, [0]
+    /// is the reference t1): [{name, preset | tf, weight, visible}], rendered in one pass by the
+    /// GL fusion renderer (ApiError 409 with the CPU renderer; 400 naming the bad entry).
+    RenderedImage render(const nlohmann::json& request, std::shared_ptr<const CaseRenderSource> src = nullptr,
+                         std::vector<ModalityLayerSource> layers = {});
     /// The world point under a pixel of the view `request` describes (the same fields as
     /// render(), plus `pixel`: [u, v], OpenCV pixel of that view): the camera-frame depth of the
     /// first opaque hit at the pixel (the renderer's depth output; the last render's when its
     /// view is the same), back-projected through the view's camera. Answers {pixel, p_world_mm,
     /// depth_mm, reused_render, renderer}. ApiError 400 for a bad request or a pixel outside the
     /// image, 422 when the ray hits no surface, 503 without a volume.
-    nlohmann::json pick(const nlohmann::json& request);
+    nlohmann::json pick(const nlohmann::json& request, std::shared_ptr<const CaseRenderSource> src = nullptr);
+    /// Prepared per-case renderers kept on the render thread.
+    static constexpr std::size_t kCaseRenderersCached = 2;
+    /// Volumes uploaded to multimodal (fusion) renderers so far: a TF, weight or visibility
+    /// change must not add to it (FusionRenderer::volume_uploads summed over the scenes made).
+    std::uint64_t fusion_volume_uploads() const;
+    /// Per-case renderer preparations so far (volume loaded and quantised for a renderer).
+    std::uint64_t case_preparations() const;
     /// The case's volume (src) rendered like render() with its photo-textured brain surface
     /// blended over it at `surface_opacity` (request field, 0..1, default 0.5) times the ROI's
     /// alpha, composited by depth (core's render_fused). ApiError 400/422/503 as render().
@@ -94,7 +127,7 @@ private:
     std::string error_;
     nlohmann::json volume_info_;  // set once the volume is loaded
     std::string backend_, backend_reason_;
-    std::uint64_t renders_ = 0, failures_ = 0;
+    std::uint64_t renders_ = 0, failures_ = 0, fusion_uploads_ = 0, case_preparations_ = 0;
     double last_render_ms_ = 0;
     bool thread_done_ = false;
 };

@@ -709,6 +709,47 @@ ResultRecord CaseStore::add_result(std::int64_t case_id, std::optional<std::int6
     throw StoreError(K::Corrupt, "result " + std::to_string(id) + ": vanished after insert");
 }
 
+std::vector<ResultRecord> CaseStore::add_results(std::int64_t case_id, const std::vector<ResultInput>& rs,
+                                             std::optional<CaseState> advance_to, const Actor& by,
+                                             const std::function<void(std::size_t)>& after_row) {
+    if (rs.empty()) throw StoreError(K::Invalid, case_name(case_id) + " results: none given");
+    for (std::size_t i = 0; i < rs.size(); ++i) validate_result_input(rs[i], case_name(case_id) + " result " + std::to_string(i));
+    {
+        std::lock_guard lk(impl_->mu);
+        impl_->require_case(case_id);
+    }
+    std::vector<BlobRef> refs;  // content-addressed: a blob without a row is harmless (nothing refers to it)
+    refs.reserve(rs.size());
+    for (const auto& r : rs) refs.push_back(impl_->put(r));
+    std::lock_guard lk(impl_->mu);
+    auto& I = *impl_;
+    const std::string at = I.now();
+    sql::Tx tx(I.db);
+    I.require_case(case_id);
+    std::vector<std::int64_t> ids;
+    for (std::size_t i = 0; i < rs.size(); ++i) {
+        ids.push_back(I.insert_result(case_id, std::nullopt, rs[i], refs[i], at));
+        I.audit_row(by, "result.add", case_id, {{"result_id", ids.back()}, {"kind", rs[i].kind}, {"sha256", refs[i].sha256}}, at);
+        if (after_row) after_row(i);
+    }
+    if (advance_to) {
+        const auto cur = I.summary(case_id).state;
+        if (static_cast<int>(*advance_to) > static_cast<int>(cur)) {
+            I.db.prepare("UPDATE cases SET state = ?, updated_utc = ? WHERE id = ?").bind(1, to_string(*advance_to)).bind(2, at).bind(3, case_id).run();
+            I.audit_row(by, "case.state", case_id, {{"from", to_string(cur)}, {"to", to_string(*advance_to)}}, at);
+        }
+    }
+    I.touch(case_id, at);
+    tx.commit();
+    const auto all = I.results(case_id);
+    std::vector<ResultRecord> out;
+    for (const auto id : ids)
+        for (const auto& r : all)
+            if (r.id == id) out.push_back(r);
+    if (out.size() != ids.size()) throw StoreError(K::Corrupt, case_name(case_id) + " results: vanished after insert");
+    return out;
+}
+
 std::string CaseStore::read_blob(const std::string& sha256) const { return impl_->blobs.read(sha256); }
 void CaseStore::copy_blob_to(const std::string& sha256, const fs::path& dest) const { impl_->blobs.copy_to(sha256, dest); }
 

@@ -283,6 +283,14 @@ public:
     RegistrationRecord add_registration(std::int64_t case_id, const RegistrationInput& r, const Actor& by = {});
     ResultRecord add_result(std::int64_t case_id, std::optional<std::int64_t> registration_id, const ResultInput& r,
                             const Actor& by = {});
+    /// Several result files and, when `advance_to` is later than the case's state, the state
+    /// moved to it, in ONE transaction (blobs written before it): every row or none (a plan's
+    /// files are one revision). `after_row(i)`, when given, runs inside the transaction after
+    /// row i is inserted (progress; a throw there rolls every row back and is rethrown).
+    /// Results in the order given.
+    std::vector<ResultRecord> add_results(std::int64_t case_id, const std::vector<ResultInput>& rs,
+                                          std::optional<CaseState> advance_to = std::nullopt, const Actor& by = {},
+                                          const std::function<void(std::size_t)>& after_row = {});
 
     /// Verified content of a blob this store holds (StoreError Corrupt naming the file).
     std::string read_blob(const std::string& sha256) const;
