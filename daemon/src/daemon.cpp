@@ -831,9 +831,6 @@ void Daemon::Impl::register_endpoints() {
                       for (const auto& n : preset_names()) tfs[n] = to_json(preset_transfer_function(n));
                       return json_ok({{"presets", preset_names()}, {"transfer_functions", tfs}});
                   }});
-    registry.add({"GET", "/api/render/volume", "render.volume", Access::read,
-                  "The rendered MRI's centre and extent (LPS mm) and its brain's box, for placing a camera",
-                  [d, json_ok](const Request&) { return json_ok(d->render->volume_json()); }});
     register_render_case_endpoints(registry, *render, *store, *jobs, work_dir);  // render (per case too), pick, fused view, histograms, job downloads
 }
 

@@ -212,6 +212,26 @@ void register_render_case_endpoints(EndpointRegistry& reg, RenderModule& render,
                  });
              }});
 
+    reg.add({"GET", "/api/render/volume", "render.volume", Access::read,
+             "The rendered MRI's centre and extent (LPS mm) and its brain's box, for placing a camera (?case_id=&volume_id=: the case's volume)",
+             [rm, st, cache](const Request& r) {
+                 return guarded([&] {
+                     if (!r.params.count("case_id")) {
+                         if (r.params.count("volume_id")) throw ApiError(400, "bad_request", "render volume volume_id: given without case_id");
+                         return ok(rm->volume_json());
+                     }
+                     const std::int64_t id = case_id_param(r, "case_id");
+                     std::optional<std::int64_t> vid;
+                     if (r.params.count("volume_id")) vid = case_id_param(r, "volume_id");
+                     const auto vol = cache->get(resolve_case_volume(*st, id, vid, "render volume"));
+                     json j = volume_geometry_json(vol->volume, vol->brain_mask ? &*vol->brain_mask : nullptr);
+                     j["file"] = vol->ref.volume_name;
+                     j["case_id"] = id;
+                     j["volume_id"] = vol->ref.volume_id;
+                     return ok(j);
+                 });
+             }});
+
     reg.add({"GET", "/api/cases/{id}/volumes/{volume_id}/histogram", "cases.volume_histogram", Access::read,
              "Intensity histogram of a case volume in the transfer functions' normalized units (?bins=8..1024), inside and outside its brain mask",
              [st, cache](const Request& r) {

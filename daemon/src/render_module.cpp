@@ -155,6 +155,14 @@ nlohmann::json mask_bounds_json(const LabelVolume& m) {
 }
 }  // namespace
 
+nlohmann::json volume_geometry_json(const Volume& volume, const LabelVolume* brain_mask) {
+    nlohmann::json j = geometry_json(volume.geom);
+    j["brain"] = brain_mask ? mask_bounds_json(*brain_mask) : nlohmann::json(nullptr);
+    j["frame"] = "LPS mm (DICOM patient: +x left, +y posterior, +z superior)";
+    j["default_view"] = {{"distance_mm", 450}, {"focal_px", "0.5 * width * distance_mm / 110"}, {"target", "center_lps_mm"}};
+    return j;
+}
+
 struct RenderModule::Job {
     enum class Mode { image, pick, fused };
     Mode mode = Mode::image;

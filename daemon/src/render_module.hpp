@@ -17,6 +17,7 @@
 #include <vector>
 
 #include "cortexfuse/core/camera.hpp"
+#include "cortexfuse/core/volume.hpp"
 #include "cortexfuse/daemon/config.hpp"
 
 namespace cf::daemon {
@@ -62,6 +63,10 @@ struct FusedSource {
     Pose T_registered;                ///< the registration's T_camera_from_world (texture mapping)
     std::string scratch_dir;          ///< where volume files are staged for the readers (removed after)
 };
+
+/// A volume's geometry as GET /api/render/volume answers it (centre, LPS box, dims, spacing,
+/// and `brain`: the mask's box, null without one).
+nlohmann::json volume_geometry_json(const Volume& volume, const LabelVolume* brain_mask);
 
 class RenderModule {
 public:

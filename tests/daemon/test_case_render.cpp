@@ -258,6 +258,13 @@ TEST(CaseRender, RendersTheCasesOwnVolumeNotTheBundledOne) {
     named.erase("case_id");
     const double named_diff = mean_abs_diff(decode(nv), decode(post("/api/render", named)));
     EXPECT_LT(named_diff, 0.5) << "standard views are centred on each volume";
+    // The case volume's geometry: the bundled one's moved by 30 mm.
+    const json g0 = get("/api/render/volume").j, g1 = get("/api/render/volume?case_id=" + std::to_string(id)).j;
+    ASSERT_TRUE(g1.contains("center_lps_mm")) << g1.dump();
+    EXPECT_LT((vec3(g1["center_lps_mm"]) - vec3(g0["center_lps_mm"]) - Eigen::Vector3d(kShiftXmm, 0, 0)).norm(), 1e-3);
+    EXPECT_LT((vec3(g1["brain"]["center_lps_mm"]) - vec3(g0["brain"]["center_lps_mm"]) - Eigen::Vector3d(kShiftXmm, 0, 0)).norm(), 1e-3);
+    EXPECT_EQ(get("/api/render/volume?case_id=x").status, 400);
+    EXPECT_EQ(get("/api/render/volume?case_id=999999").status, 404);
     std::cout << "[ figures ] same pose " << differ << " grey levels apart; camera moved with the head " << same
               << "; renderer " << mine.headers.find("X-Renderer")->second << "; RSS " << rss_kib() / 1024 << " MiB\n";
 }
