@@ -13,6 +13,7 @@ import { TfEditor } from "./tf_editor";
 import { centreLps, gunzipIfNeeded, parseNifti, type Volume as NiftiVolume } from "./nifti";
 import { orbitCamera } from "./fused_pose";
 import { mountTags, type Intrinsics } from "./tags";
+import { mountLiveView } from "./live_view";
 import type { TfJson } from "./tf_model";
 import { canWrite, KIOSK, loadSession, roleLabel, saveSession, sessionFromLogin, wsUrl, type Session } from "./session";
 import { auditRows, fmtBytes, fmtTime, holdings, patientLine, registrationRows, type AuditEntry, type CaseRecord } from "./case_detail";
@@ -615,7 +616,16 @@ function casePhoto(id: number, body: HTMLElement, alive: Alive, got: (c: CaseRec
     if (!alive()) return;
     got(c);
     const photos = [...(c.photos ?? [])].sort((a, b) => b.id - a.id);
-    if (!photos.length) { body.replaceChildren(h("p", { class: "muted", "data-testid": "no-photo" }, "No photo yet. Add one in Contents.")); return; }
+    if (!photos.length) {
+      const msg = h("p", { class: "muted", "data-testid": "no-photo" }, writer ? "No photo yet: capture one with the camera here (Live view, then Capture), or add a file in Contents." : "No photo yet.");
+      if (!writer) { body.replaceChildren(msg); return; }
+      // The camera's live view and Capture (src/live_view.ts); stopped when the screen is left.
+      const liveStage = h("div", { class: "photo-stage", "data-testid": "photo-stage" });
+      const liveSide = h("aside", { class: "controls" }, msg);
+      body.replaceChildren(h("div", { class: "case-layout" }, liveStage, liveSide));
+      onLeave(mountLiveView(id, liveStage, liveSide, () => route(), showError).stop);
+      return;
+    }
     const photo = photos[0];
     const W = photo.intrinsics?.width ?? 640, H = photo.intrinsics?.height ?? 480;
     let blob: Blob;
@@ -654,6 +664,7 @@ function casePhoto(id: number, body: HTMLElement, alive: Alive, got: (c: CaseRec
       h("p", { class: "muted" }, writer ? "Tap on the photo to add a control point (it goes into the nearest edge), drag one to move it, tap it and Delete point to remove it." : "Read-only."));
     const side = h("aside", { class: "controls" }, h("h2", {}, "Mark"), modeBox, lmPanel, roiPanel, info);
     body.replaceChildren(h("div", { class: "case-layout" }, stage, side));
+    if (writer) onLeave(mountLiveView(id, stage, side, () => route(), showError).stop); // a new photo: live view, Capture
 
     const scale = () => { const r = svg.getBoundingClientRect(); return Math.min(r.width / W, r.height / H) || 1; };
     const toPx = (e: PointerEvent): Px => {
