@@ -498,7 +498,7 @@ void register_navigation_endpoints(EndpointRegistry& reg, CaseStore& store, Trac
     auto slices = std::make_shared<SliceSource>();
     slices->bundled = std::make_shared<SliceVolume>(options.t1_path);
     slices->store = st;
-    slices->cases = std::make_shared<CaseVolumeCache>(store, options.work_dir / "slice_volumes", 2);
+    slices->cases = std::make_shared<CaseVolumeCache>(store, options.work_dir / "slice_volumes", 1);  // 64 MiB a 256^3 T1
     // Recording and deleting read the newest list of recorded fiducials and store the next
     // one: two at once must not both build on the same list (one would be lost).
     auto list_mu = std::make_shared<std::mutex>();

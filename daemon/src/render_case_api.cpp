@@ -272,9 +272,9 @@ void register_render_case_endpoints(EndpointRegistry& reg, RenderModule& render,
                  if (r.body.is_null()) throw ApiError(400, "bad_request", "render pick: the request must be a JSON object with pixel [u, v]");
                  return guarded([&] {
                      json body = r.body;
-                     if (body.is_object() && body.contains("modalities"))
-                         throw ApiError(400, "bad_request", "render pick modalities: picks are on the case's T1 surface; leave modalities out");
+                     // The shown view's request may hold its modalities (checked): the pick is on the case's T1 surface.
                      CaseView v = case_view(*st, cache, body, "render pick");
+                     if (body.is_object()) body.erase("modalities");
                      json a = rm->pick(body, v.src);
                      if (v.src) a["volume"] = v.src->source;
                      return ok(a);

@@ -18,6 +18,7 @@ import type { TfJson } from "./tf_model";
 import { canWrite, KIOSK, loadSession, roleLabel, saveSession, sessionFromLogin, wsUrl, type Session } from "./session";
 import { auditRows, fmtBytes, fmtTime, holdings, patientLine, registrationRows, type AuditEntry, type CaseRecord } from "./case_detail";
 import { trackerScreen } from "./tracker_screen";
+import { caseRenderFields, defaultLayers, histogramBars, histogramPath, ModalityTabs, newestT1, planModalities, type ModalityLayer, type VolumeHistogram } from "./case_render";
 
 // ---- shared state ------------------------------------------------------------------------
 interface CaseSummary { id: number; uid: string; title: string; state: string; created_utc: string; updated_utc: string }
@@ -935,7 +936,13 @@ function caseView(id: number, body: HTMLElement, aliveFn: Alive, got: (c: CaseRe
   const brainBtn = h("button", { class: "btn", "data-testid": "tf-brain-only" }, "Brain only");
   const tfTitle = h("span", { "data-testid": "tf-title" }, "");
   const v: View = { preset: "cortex_t1", opacity: 1, orbit: { azimuthDeg: 0, elevationDeg: 0, distanceMm: 450 }, tf: null, brainOnly: true };
+  // The case's own volumes: its T1 (case_id on every request), its plan's CT/fMRI as layers.
+  let layers: ModalityLayer[] = defaultLayers(["t1"]);
+  let tabs: ModalityTabs | null = null;
+  let hist: VolumeHistogram | null = null;
+  const tabsBox = h("div", { "data-testid": "modality-box" });
   const editor = new TfEditor((tf, final) => {
+    if (tabs && tabs.selected.name !== "t1") { tabs.selected.tf = tf; if (final) sched.now({ ...v }); else sched.interactive({ ...v }); return; }
     v.tf = tf;
     mark(presets, "");
     tfTitle.textContent = ` (custom, from ${v.preset.replace(/_/g, " ")})`;
@@ -952,7 +959,7 @@ function caseView(id: number, body: HTMLElement, aliveFn: Alive, got: (c: CaseRe
   const side = h("aside", { class: "controls" },
     h("div", { class: "choices" }, pickBtn), pickNote,
     h("h2", {}, "Preset"), presets,
-    h("h2", {}, "Transfer function", tfTitle), editor.el, h("div", { class: "choices" }, brainBtn),
+    tabsBox, h("h2", {}, "Transfer function", tfTitle), editor.el, h("div", { class: "choices" }, brainBtn),
     h("h2", {}, "Opacity ", opacityOut), opacity,
     h("h2", {}, "View"), views,
     h("p", { class: "muted" }, "Drag on the picture to turn the head; pinch with two fingers to zoom."), info);
@@ -963,7 +970,7 @@ function caseView(id: number, body: HTMLElement, aliveFn: Alive, got: (c: CaseRe
   let geo: VolumeGeometry | null = null;
   let geoTries = 0;
   const loadGeo = () => {
-    apiJson<VolumeGeometry>("GET", "/api/render/volume").then((g) => { geo = g; stage.dataset.orbit = "free"; }, () => {
+    apiJson<VolumeGeometry>("GET", `/api/render/volume?case_id=${id}`).then((g) => { geo = g; stage.dataset.orbit = "free"; }, () => {
       if (aliveFn() && ++geoTries < 30) setTimeout(loadGeo, 1000);
     });
   };
@@ -978,7 +985,7 @@ function caseView(id: number, body: HTMLElement, aliveFn: Alive, got: (c: CaseRe
     if (view.tf) { req.tf = view.tf; req.brain_only = view.brainOnly; } else req.preset = view.preset;
     if (geo) req.T_camera_from_world = orbitPose(view.orbit, target(view));
     else { req.view = namedViewOf(view.orbit) ?? "left"; req.distance_mm = view.orbit.distanceMm; }
-    return req;
+    return Object.assign(req, caseRenderFields(id, layers, { preset: view.preset, tf: view.tf }));
   };
   const sched = new RenderScheduler<View>({
     render: (view, size) => apiRender(viewRequest(view, size)),
@@ -998,6 +1005,13 @@ function caseView(id: number, body: HTMLElement, aliveFn: Alive, got: (c: CaseRe
     },
     onError: (e) => {
       if (!aliveFn()) return;
+      if (tabs && /GL renderer/.test(plainMessage(e))) {  // a CPU-only daemon: the T1 alone
+        layers = defaultLayers(["t1"]);
+        tabs = null;
+        tabsBox.replaceChildren(h("p", { class: "muted", "data-testid": "modality-note" }, "CT and fMRI layers need the GL renderer; the T1 is shown alone."));
+        sched.now({ ...v });
+        return;
+      }
       showError(e);
       renderErrText.textContent = `${sentence(plainMessage(e))} The view's settings are kept; try again when the daemon is ready.`;
       renderErr.hidden = false;
@@ -1021,7 +1035,10 @@ function caseView(id: number, body: HTMLElement, aliveFn: Alive, got: (c: CaseRe
       sched.now({ ...v });
     } }, name));
   showOrbit();
-  const showBrain = () => { brainBtn.classList.toggle("active", v.brainOnly); brainBtn.textContent = v.brainOnly ? "Brain only: on" : "Brain only: off"; };
+  const showBrain = () => {
+    brainBtn.classList.toggle("active", v.brainOnly); brainBtn.textContent = v.brainOnly ? "Brain only: on" : "Brain only: off";
+    editor.setHistogram(hist && (!tabs || tabs.selected.name === "t1") ? histogramBars(hist, v.brainOnly) : null);
+  };
   brainBtn.addEventListener("click", () => {
     if (!v.tf) { showError(new UserMessage("Brain only applies to an edited transfer function; the presets choose it themselves.")); return; }
     v.brainOnly = !v.brainOnly;
@@ -1054,6 +1071,17 @@ function caseView(id: number, body: HTMLElement, aliveFn: Alive, got: (c: CaseRe
     got(c);
     caseRec = c;
     pickBtn.hidden = !canWrite(session) || !(c.volumes ?? []).some((x) => x.modality === "mask");
+    const t1 = newestT1(c);
+    if (t1 !== null) apiJson<VolumeHistogram>("GET", histogramPath(id, t1)).then((r) => { hist = r; showBrain(); }, () => undefined);
+    if (planModalities(c).length > 1) {
+      layers = defaultLayers(planModalities(c));
+      tabs = new ModalityTabs(layers, (l) => {
+        if (l.name === "t1") { if (v.tf) editor.load(v.tf); else if (tfs[v.preset]) editor.load(tfs[v.preset]); }
+        else { const t = l.tf ?? tfs[l.preset]; if (t) editor.load(t); }
+        showBrain();
+      }, (final) => (final ? sched.now({ ...v }) : sched.interactive({ ...v })));
+      tabsBox.replaceChildren(h("h2", {}, "Modalities"), tabs.el);
+    }
     sched.now({ ...v });
   }, missing);
   stage.append(pickMarks);

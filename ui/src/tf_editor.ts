@@ -24,6 +24,7 @@ export class TfEditor {
   private base: TfJson | null = null;
   private selected = -1;
   private drag: { id: number; moved: boolean } | null = null;
+  private bars: number[] | null = null;
 
   constructor(private readonly onChange: (tf: TfJson, final: boolean) => void) {
     this.canvas = h("canvas", { class: "tf-canvas", "data-testid": "tf-canvas", "aria-label": "Transfer function: opacity over intensity" });
@@ -61,6 +62,14 @@ export class TfEditor {
     this.base = tf;
     this.points = pointsFromTf(tf);
     this.selected = -1;
+    this.draw();
+  }
+
+  /** The volume's intensity histogram under the points (heights 0..1 per equal bin of the
+   *  normalised intensity 0..1, case_render.ts histogramBars); null removes it. */
+  setHistogram(bars: number[] | null): void {
+    this.bars = bars && bars.length ? bars : null;
+    this.canvas.dataset.histogramBins = String(this.bars?.length ?? 0);
     this.draw();
   }
 
@@ -145,11 +154,17 @@ export class TfEditor {
     ctx.strokeStyle = "#26313d";
     ctx.lineWidth = 1;
     for (let k = 1; k < 4; k++) { ctx.beginPath(); ctx.moveTo(0, (k * hh) / 4); ctx.lineTo(w, (k * hh) / 4); ctx.stroke(); }
-    if (!this.points.length) return;
     const full = { w, h: hh };
     ctx.save();
     ctx.translate(PAD, PAD);
     ({ w, h: hh } = this.plot());
+    if (this.bars) {
+      // The histogram in the same units as the points: bin b spans x in [b, b + 1) / bins.
+      const n = this.bars.length;
+      ctx.fillStyle = "#3b4b5c";
+      this.bars.forEach((v, b) => { if (v > 0) ctx.fillRect((b * w) / n, hh - v * hh, Math.max(1, w / n - 0.5), v * hh); });
+    }
+    if (!this.points.length) { ctx.restore(); return; }
     // The area under the opacity line, coloured as the points are.
     const grad = ctx.createLinearGradient(0, 0, w, 0);
     for (const p of this.points) grad.addColorStop(Math.max(0, Math.min(1, p.x)), rgbCss(p.colour));
