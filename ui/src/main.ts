@@ -940,6 +940,7 @@ function caseView(id: number, body: HTMLElement, aliveFn: Alive, got: (c: CaseRe
   let layers: ModalityLayer[] = defaultLayers(["t1"]);
   let tabs: ModalityTabs | null = null;
   let hist: VolumeHistogram | null = null;
+  let caseT1 = false;  // without a T1 of its own the case shows the daemon's MRI
   const tabsBox = h("div", { "data-testid": "modality-box" });
   const editor = new TfEditor((tf, final) => {
     if (tabs && tabs.selected.name !== "t1") { tabs.selected.tf = tf; if (final) sched.now({ ...v }); else sched.interactive({ ...v }); return; }
@@ -970,8 +971,12 @@ function caseView(id: number, body: HTMLElement, aliveFn: Alive, got: (c: CaseRe
   let geo: VolumeGeometry | null = null;
   let geoTries = 0;
   const loadGeo = () => {
-    apiJson<VolumeGeometry>("GET", `/api/render/volume?case_id=${id}`).then((g) => { geo = g; stage.dataset.orbit = "free"; }, () => {
-      if (aliveFn() && ++geoTries < 30) setTimeout(loadGeo, 1000);
+    const forCase = caseT1;  // an answer for the daemon's MRI that comes after the case's is dropped
+    apiJson<VolumeGeometry>("GET", forCase ? `/api/render/volume?case_id=${id}` : "/api/render/volume").then((g) => {
+      if (forCase !== caseT1) return;
+      geo = g; stage.dataset.orbit = "free";
+    }, () => {
+      if (aliveFn() && forCase === caseT1 && ++geoTries < 30) setTimeout(loadGeo, 1000);
     });
   };
   loadGeo();
@@ -985,7 +990,7 @@ function caseView(id: number, body: HTMLElement, aliveFn: Alive, got: (c: CaseRe
     if (view.tf) { req.tf = view.tf; req.brain_only = view.brainOnly; } else req.preset = view.preset;
     if (geo) req.T_camera_from_world = orbitPose(view.orbit, target(view));
     else { req.view = namedViewOf(view.orbit) ?? "left"; req.distance_mm = view.orbit.distanceMm; }
-    return Object.assign(req, caseRenderFields(id, layers, { preset: view.preset, tf: view.tf }));
+    return caseT1 ? Object.assign(req, caseRenderFields(id, layers, { preset: view.preset, tf: view.tf })) : req;
   };
   const sched = new RenderScheduler<View>({
     render: (view, size) => apiRender(viewRequest(view, size)),
@@ -1072,6 +1077,8 @@ function caseView(id: number, body: HTMLElement, aliveFn: Alive, got: (c: CaseRe
     caseRec = c;
     pickBtn.hidden = !canWrite(session) || !(c.volumes ?? []).some((x) => x.modality === "mask");
     const t1 = newestT1(c);
+    caseT1 = t1 !== null;
+    if (caseT1) { geo = null; geoTries = 0; loadGeo(); }
     if (t1 !== null) apiJson<VolumeHistogram>("GET", histogramPath(id, t1)).then((r) => { hist = r; showBrain(); }, () => undefined);
     if (planModalities(c).length > 1) {
       layers = defaultLayers(planModalities(c));
