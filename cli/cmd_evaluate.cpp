@@ -18,6 +18,8 @@
 #include "cortexfuse/core/landmarks.hpp"
 #include "cortexfuse/core/phantom.hpp"
 #include "cortexfuse/core/registration.hpp"
+#include "cortexfuse/core/roi.hpp"
+#include "cortexfuse/core/transfer_function.hpp"
 #include "cortexfuse/render/renderer_factory.hpp"
 #include "progress_bar.hpp"
 
@@ -173,6 +175,8 @@ void add_evaluate(CLI::App& app) {
             // Cases from one phantom share a volume: keep the prepared engine per volume file.
             std::map<std::string, std::unique_ptr<Registration>> engines;
             std::map<std::string, std::unique_ptr<PhantomSurface>> surfaces;
+            // The registration's surface rendering, to measure how far it lies from the true mesh.
+            std::map<std::string, std::unique_ptr<Renderer>> surface_renderers;
             const int total = int(cases.size()) * trials;
             int done = 0;
             for (const auto& dir : cases) {
@@ -189,6 +193,19 @@ void add_evaluate(CLI::App& app) {
                 const Truth& truth = *c.spec.truth;
                 const Intrinsics& K = c.spec.camera;
                 const PoseErrors e_true = pose_errors(truth, K, truth.T_camera_from_world, mesh);
+                auto& sr = surface_renderers[key];
+                if (!sr) sr = make_cpu_renderer(c.volume, preset_transfer_function(params.transfer_function), &c.mask);
+                SurfaceOffset offset;
+                {
+                    const double s = std::min(1.0, 375.0 / K.width);
+                    const Intrinsics Ks = s < 1 ? K.scaled(s) : K;
+                    RenderOptions ro;
+                    ro.surface_only = params.surface_only;
+                    ro.sample_distance_mm = params.sample_distance_mm;
+                    ro.want_rgb = false;
+                    const cv::Mat roi = c.photo.roi ? roi_mask(*c.photo.roi, Ks.width, Ks.height, s) : cv::Mat();
+                    offset = surface_offset(*sr, ro, mesh, Ks, truth.T_camera_from_world, roi);
+                }
                 floor.mre.push_back(e_true.mre_mm);
                 floor.tre.push_back(e_true.tre_mm);
                 floor.ipe_px.push_back(e_true.ipe_px);
@@ -237,8 +254,11 @@ void add_evaluate(CLI::App& app) {
                     runs.push_back({{"case", dir.filename().string()}, {"trial", t}, {"misalignment", x},
                                     {"initial", {{"mre_mm", e0.mre_mm}, {"tre_mm", e0.tre_mm}, {"ipe_px", e0.ipe_px}}},
                                     {"registered", {{"mre_mm", e1.mre_mm}, {"tre_mm", e1.tre_mm}, {"ipe_px", e1.ipe_px},
-                                                    {"targets_missed", e1.targets_missed}}},
-                                    {"landmarks_only", {{"mre_mm", e_lm.mre_mm}, {"tre_mm", e_lm.tre_mm}}},
+                                                    {"targets_missed", e1.targets_missed},
+                                                    {"offset_camera_mm", {e1.offset_camera_mm.x(), e1.offset_camera_mm.y(), e1.offset_camera_mm.z()}}}},
+                                    {"landmarks_only", {{"mre_mm", e_lm.mre_mm}, {"tre_mm", e_lm.tre_mm},
+                                                        {"offset_camera_mm", {e_lm.offset_camera_mm.x(), e_lm.offset_camera_mm.y(), e_lm.offset_camera_mm.z()}}}},
+                                    {"surface_offset_mm", {{"median", offset.median_mm}, {"mean", offset.mean_mm}, {"mad", offset.mad_mm}, {"pixels", offset.pixels}}},
                                     {"seconds", r.seconds}, {"evaluations", r.evaluations}, {"similarity", r.similarity},
                                     {"truth_score", {{"similarity", s_truth.similarity}, {"cost", s_truth.cost}}},
                                     {"final_score", {{"similarity", s_final.similarity}, {"cost", s_final.cost}}}});

@@ -2,6 +2,7 @@
 
 #include <cmath>
 #include <functional>
+#include <numeric>
 
 #include "cortexfuse/core/rasterizer.hpp"
 
@@ -41,6 +42,7 @@ PoseErrors pose_errors_with(const Truth& truth, const Intrinsics& K, const Pose&
         if (!ut) continue;
         ++n;
         tre += (pt - pr).norm();
+        e.offset_camera_mm += pr - pt;
         const double dpx = ur ? (*ut - *ur).norm() : 1e3;
         ipe += dpx;
         ipe_mm += dpx * pt.z() / K.fx;
@@ -66,11 +68,41 @@ PoseErrors pose_errors_with(const Truth& truth, const Intrinsics& K, const Pose&
         e.mre_mm = mre / n;
         e.ipe_px = ipe / n;
         e.ipe_mm = ipe_mm / n;
+        e.offset_camera_mm /= double(n);
     }
     return e;
 }
 
 }  // namespace
+
+SurfaceOffset surface_offset(Renderer& surface, const RenderOptions& options, const RasterMesh& mesh_world,
+                             const Intrinsics& K, const Pose& T, const cv::Mat& mask) {
+    RenderOptions o = options;
+    o.want_depth = true;
+    RenderImage img;
+    surface.render(K, T, o, img);
+    const RasterBuffers rb = rasterize(mesh_world, K, T);
+    std::vector<double> d;
+    for (int v = 0; v < K.height; ++v)
+        for (int u = 0; u < K.width; ++u) {
+            if (!mask.empty() && !mask.at<uint8_t>(v, u)) continue;
+            const size_t i = size_t(v) * K.width + u;
+            if (!img.coverage[i] || !rb.hit(u, v)) continue;
+            d.push_back(double(img.depth_mm[i]) - rb.depth_mm[rb.index(u, v)]);
+        }
+    SurfaceOffset s;
+    s.pixels = int(d.size());
+    if (d.empty()) return s;
+    s.mean_mm = std::accumulate(d.begin(), d.end(), 0.0) / double(d.size());
+    auto median = [](std::vector<double> a) {
+        std::nth_element(a.begin(), a.begin() + long(a.size() / 2), a.end());
+        return a[a.size() / 2];
+    };
+    s.median_mm = median(d);
+    for (auto& x : d) x = std::abs(x - s.median_mm);
+    s.mad_mm = median(d);
+    return s;
+}
 
 PoseErrors pose_errors(const Truth& truth, const Intrinsics& K, const Pose& Tr, Renderer& surface, double sample_mm) {
     return pose_errors_with(truth, K, Tr, [&](const Eigen::Vector2d& px) { return surface_depth_at(surface, K, Tr, px, sample_mm); });

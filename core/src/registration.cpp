@@ -125,6 +125,10 @@ void RegistrationParams::validate(const std::string& ctx) const {
     if (!(sample_distance_mm >= 0.1 && sample_distance_mm <= 5)) bad("sample_distance_mm must be 0.1..5");
     if (!(roi_margin_fraction >= 0 && roi_margin_fraction <= 2)) bad("roi_margin_fraction must be 0..2");
     if (!(depth_weight >= 0 && depth_weight <= 1)) bad("depth_weight must be 0..1");
+    if (!(sulcal_weight >= 0 && sulcal_weight <= 1)) bad("sulcal_weight must be 0..1");
+    if (!(sulcal_lo_mm >= 0 && sulcal_hi_mm > sulcal_lo_mm && sulcal_hi_mm <= 20))
+        bad("sulcal_lo_mm and sulcal_hi_mm must satisfy 0 <= lo < hi <= 20");
+    if (!(sulcal_hull_fwhm_mm >= 1 && sulcal_hull_fwhm_mm <= 50)) bad("sulcal_hull_fwhm_mm must be 1..50");
     if (!(light_max_offset >= 0 && light_max_offset <= 2)) bad("light_max_offset must be 0..2");
     if (light_grid < 1 || light_grid > 15) bad("light_grid must be 1..15");
     if (light_rounds < 1 || light_rounds > 5) bad("light_rounds must be 1..5");
@@ -196,6 +200,10 @@ json to_json(const RegistrationParams& p) {
     j["light_rounds"] = p.light_rounds;
     j["light_width_px"] = p.light_width_px;
     j["depth_weight"] = p.depth_weight;
+    j["sulcal_weight"] = p.sulcal_weight;
+    j["sulcal_lo_mm"] = p.sulcal_lo_mm;
+    j["sulcal_hi_mm"] = p.sulcal_hi_mm;
+    j["sulcal_hull_fwhm_mm"] = p.sulcal_hull_fwhm_mm;
     j["starts"] = p.starts;
     j["search_keep"] = p.search_keep;
     j["keep_best"] = p.keep_best;
@@ -234,6 +242,10 @@ RegistrationParams registration_params_from_json(const json& j, const std::strin
         p.light_width_px = j.value("light_width_px", p.light_width_px);
         p.search_keep = j.value("search_keep", p.search_keep);
         p.depth_weight = j.value("depth_weight", p.depth_weight);
+        p.sulcal_weight = j.value("sulcal_weight", p.sulcal_weight);
+        p.sulcal_lo_mm = j.value("sulcal_lo_mm", p.sulcal_lo_mm);
+        p.sulcal_hi_mm = j.value("sulcal_hi_mm", p.sulcal_hi_mm);
+        p.sulcal_hull_fwhm_mm = j.value("sulcal_hull_fwhm_mm", p.sulcal_hull_fwhm_mm);
         if (j.contains("starts")) p.starts = j.at("starts").get<std::vector<PoseParams>>();
         p.keep_best = j.value("keep_best", p.keep_best);
         if (j.contains("search_stages")) {
@@ -498,11 +510,36 @@ public:
         renderer_.render(L.K, T, ropt_, img_);
         cv::Mat rendered(L.K.height, L.K.width, CV_32F, img_.grey.data());
         if (p_.depth_weight > 0) rendered = mix_relief(L.K.width, L.K.height);
+        if (p_.sulcal_weight > 0) rendered = sulcal_darken(rendered, L);
         filter(rendered, rendered_blur_, st.fwhm_mm, L);
         return sim_.evaluate(metric_, rendered_blur_, L.photo_blur, L.photo.valid);
     }
 
 private:
+    /// Sulcal darkening (see RegistrationParams::sulcal_weight), in a reused buffer. The relief
+    /// is screen-space: the hit's depth below its neighbourhood's mean depth (background at the
+    /// deepest hit, so the brain's outline is not taken for a sulcus).
+    cv::Mat& sulcal_darken(const cv::Mat& shade, const Level& L) {
+        const int n = L.K.width * L.K.height;
+        depth_.create(L.K.height, L.K.width, CV_32F);
+        float deepest = 0;
+        for (int i = 0; i < n; ++i)
+            if (img_.coverage[size_t(i)]) deepest = std::max(deepest, img_.depth_mm[size_t(i)]);
+        float* d = depth_.ptr<float>();
+        for (int i = 0; i < n; ++i) d[i] = img_.coverage[size_t(i)] ? img_.depth_mm[size_t(i)] : deepest;
+        blur_fwhm_mm(depth_, hull_, p_.sulcal_hull_fwhm_mm, L.K.fx, depth_mm_);
+        darkened_.create(L.K.height, L.K.width, CV_32F);
+        const float* h = hull_.ptr<float>();
+        const float* s = shade.ptr<float>();
+        float* o = darkened_.ptr<float>();
+        const float lo = float(p_.sulcal_lo_mm), hi = float(p_.sulcal_hi_mm), w = float(p_.sulcal_weight);
+        for (int i = 0; i < n; ++i) {
+            const float t = std::clamp((d[i] - h[i] - lo) / (hi - lo), 0.f, 1.f);
+            o[i] = s[i] * (1.f - w * t * t * (3 - 2 * t));
+        }
+        return darkened_;
+    }
+
     /// (1 - w) * shading + w * relief (negated depth, 1 per 10 mm; background at the deepest
     /// hit), in a reused buffer.
     cv::Mat& mix_relief(int w, int h) {
@@ -552,7 +589,7 @@ private:
     RenderOptions ropt_;
     std::map<int, Level> levels_;
     RenderImage img_;
-    cv::Mat rendered_blur_, lowpass_, mixed_;
+    cv::Mat rendered_blur_, lowpass_, mixed_, depth_, hull_, darkened_;
     std::vector<float> vals_;
     double depth_mm_ = 300;
 };

@@ -112,6 +112,12 @@ TEST(Registration, ParametersRoundTripAndRejectNonsense) {
     bad = to_json(p);
     bad["photo_channel"] = "ultraviolet";
     EXPECT_THROW(registration_params_from_json(bad, "params"), InputError);
+    bad = to_json(p);
+    bad["sulcal_weight"] = 1.5;
+    EXPECT_THROW(registration_params_from_json(bad, "params"), InputError);
+    bad = to_json(p);
+    bad["sulcal_lo_mm"] = 4.0;  // above sulcal_hi_mm
+    EXPECT_THROW(registration_params_from_json(bad, "params"), InputError);
 }
 
 TEST(Registration, ScreensEveryStartThenSearchesOnlyTheKeptOnesAndRefinesTheWinner) {
@@ -193,6 +199,39 @@ TEST(Evaluation, MreOnTheTrueSurfaceMeshIsZeroAtTheTruth) {
     const PoseErrors e1 = pose_errors(t, f.c.spec.camera, apply_params(t.T_camera_from_world, pivot, {0, 0, 0, 5, 0, 0}), surface.mesh);
     EXPECT_NEAR(e1.tre_mm, 5.0, 1e-6);
     EXPECT_GT(e1.mre_mm, 3.0);
+    // The mean target offset in the true camera frame tells a lateral error from a depth one.
+    EXPECT_NEAR(e1.offset_camera_mm.x(), 5.0, 1e-6);
+    EXPECT_NEAR(e1.offset_camera_mm.z(), 0.0, 1e-6);
+    const PoseErrors e2 = pose_errors(t, f.c.spec.camera, apply_params(t.T_camera_from_world, pivot, {0, 0, 0, 0, 0, 3}), surface.mesh);
+    EXPECT_NEAR(e2.offset_camera_mm.z(), 3.0, 1e-6);
+    EXPECT_NEAR(e2.offset_camera_mm.head<2>().norm(), 0.0, 1e-6);
+}
+
+TEST(Evaluation, SurfaceOffsetMeasuresWhereTheRenderedSurfaceLiesAgainstTheMesh) {
+    const Fixture& f = fixture();
+    ASSERT_TRUE(f.c.spec.truth.has_value());
+    const Truth& t = *f.c.spec.truth;
+    const PhantomSurface surface = build_phantom_surface(f.c.volume, f.c.mask);
+    Registration reg(f.c.volume, f.c.mask, small_params());
+    const Intrinsics K = f.c.spec.camera.scaled(160.0 / f.c.spec.camera.width);
+    RenderOptions o;
+    o.surface_only = true;
+    o.sample_distance_mm = 1.0;
+    o.want_rgb = false;
+    const SurfaceOffset at_truth = surface_offset(reg.renderer(), o, surface.mesh, K, t.T_camera_from_world, cv::Mat());
+    ASSERT_GT(at_truth.pixels, 500);
+    // The iso-surface of the same volume: within a voxel of the mesh.
+    EXPECT_LT(std::abs(at_truth.median_mm), 1.0);
+    // Rendering from a camera 4 mm farther along its axis while the mesh stays: the mesh is
+    // rasterised with the same (moved) pose, so the offset must not change...
+    Pose farther = t.T_camera_from_world;
+    farther(2, 3) += 4.0;
+    const SurfaceOffset same = surface_offset(reg.renderer(), o, surface.mesh, K, farther, cv::Mat());
+    EXPECT_NEAR(same.median_mm, at_truth.median_mm, 0.3);
+    // ...and an empty mask leaves nothing to compare.
+    const SurfaceOffset none = surface_offset(reg.renderer(), o, surface.mesh, K, t.T_camera_from_world,
+                                              cv::Mat::zeros(K.height, K.width, CV_8U));
+    EXPECT_EQ(none.pixels, 0);
 }
 
 TEST(Registration, APoseLookingAwayFromTheBrainIsAClearInputError) {

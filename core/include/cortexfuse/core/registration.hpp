@@ -85,6 +85,12 @@ struct RegistrationParams {
     /// high-pass it is the local sulcal depth, which does not depend on where the light was.
     /// 0: shading only (the seed).
     double depth_weight = 0.0;
+    /// Sulcal darkening of the rendering: shade * (1 - w * smoothstep(lo, hi, relief)), relief =
+    /// the hit's depth below the local mean depth (blurred over sulcal_hull_fwhm_mm). Exposed
+    /// cortex looks dark in its sulci (shadow, CSF, the veins that run there), which Lambert
+    /// shading of the surface alone does not show. 0: shading only (the seed).
+    double sulcal_weight = 0.0;
+    double sulcal_lo_mm = 0.5, sulcal_hi_mm = 3.0, sulcal_hull_fwhm_mm = 8.0;
     /// Rendering is cropped to the ROI's bounding box plus this fraction of the working width
     /// on each side (context for the blurs). Larger than 1 renders the whole frame.
     double roi_margin_fraction = 0.12;
