@@ -3,7 +3,7 @@
 // the renderer when it builds the program, 1..4). Per pixel: the ray from the camera through
 // the pixel (undistorted on the CPU into u_rays), samples on the lattice t = n * step (mm from
 // the camera), trilinear interpolation of the quantised volume (0..4095), the transfer
-// function as a 4096-entry table, a secant step to the first crossing of the reference layer's
+// function as a 4096-entry table, two bisection steps and a secant step to the first crossing of the reference layer's
 // surface level (depth and shading there), Lambert headlight shading from the central-
 // difference gradient, front-to-back compositing, early termination, and empty-space skipping
 // over 8^3 bricks. Image row v is framebuffer row v (no flip; read back row by row).
@@ -173,11 +173,17 @@ void main() {
                     // First crossing of the surface level, between the last sample and this one.
                     refined = true;
                     have_ref = true;
-                    // One secant step, as the CPU ray caster does.
-                    const float ta = t - step;
-                    const float sa = vol_clamped(0, o[0] + ta * d[0]);
-                    const float frac = s0 - sa > 1e-6 ? clamp((u_iso - sa) / (s0 - sa), 0.0, 1.0) : 1.0;
-                    t_ref = ta + frac * step;
+                    // Two bisection steps, then a secant step, as the CPU ray caster does.
+                    float ta = t - step, tb = t, sb = s0;
+                    float sa = vol_clamped(0, o[0] + ta * d[0]);
+                    for (int it = 0; it < 2; ++it) {
+                        const float tm = 0.5 * (ta + tb);
+                        const float sm = vol_clamped(0, o[0] + tm * d[0]);
+                        if (sm >= u_iso) { tb = tm; sb = sm; }
+                        else { ta = tm; sa = sm; }
+                    }
+                    const float frac = sb - sa > 1e-6 ? clamp((u_iso - sa) / (sb - sa), 0.0, 1.0) : 1.0;
+                    t_ref = ta + frac * (tb - ta);
                 }
             }
             while (t <= t1 && t < t_mesh) {

@@ -63,7 +63,7 @@ RegistrationParams RegistrationParams::defaults() {
     // A cheap screen of every start at 128 px, then the best three searched at 190 px; the
     // light scored at 190 px; the two best refined at 250 px, and the winner, after the light
     // is re-estimated, at 375 px. Rendering only the first surface crossing with 2 mm samples
-    // (a secant step between two samples finds the crossing). Evaluation of 2026-11-22 (third
+    // (two bisection steps and a secant step find the crossing). Evaluation of 2026-11-22 (third
     // session): MRE 1.22 -> 1.30 mm (within the spread of 16 runs), 100 %, with ~740 instead
     // of ~870 evaluations, most of them at small sizes: CPU time 8.2 -> 2.7 s a registration.
     p.search_stages = {
