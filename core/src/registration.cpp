@@ -90,6 +90,12 @@ RegistrationParams RegistrationParams::defaults() {
     p.estimate_light = true;
     p.light_rounds = 2;
     p.light_width_px = 190;
+    // Sulci darkened in the rendering by their relief below a 12 mm neighbourhood: the photo's
+    // sulci are dark (shadow, CSF, veins), which the Lambert shading of the surface alone does
+    // not show (evaluation of 2026-11-22, fourth session: seed protocol on ev8 1.29 -> 1.05 mm,
+    // both 100 %; docs/registration.md).
+    p.sulcal_weight = 0.8;
+    p.sulcal_hull_fwhm_mm = 12.0;
     return p;
 }
 
