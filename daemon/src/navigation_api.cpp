@@ -5,6 +5,9 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstdio>
+#include <fstream>
+#include <unistd.h>
 #include <map>
 #include <mutex>
 #include <opencv2/imgcodecs.hpp>
@@ -448,7 +451,7 @@ json suggested_fiducials(const cf::Volume& v, float lo, float hi) {
 }
 
 /// The pointer tip in use (tip_pointer_mm): NavigationOptions' until a pivot calibration is
-/// applied (POST /api/navigation/pivot {apply: true}); kept in memory until the daemon stops.
+/// applied (POST /api/navigation/pivot {apply: true}); stored in NavigationOptions::tip_file and read again at start.
 class PointerTip {
 public:
     explicit PointerTip(const Eigen::Vector3d& t) : tip_(t) {}
@@ -471,6 +474,45 @@ private:
     Eigen::Vector3d tip_;
     std::string source_ = "default (the pointer tool's origin)";
 };
+
+/// The applied pivot calibration kept on disk (NavigationOptions::tip_file): read at start,
+/// written on apply through a temporary file, fsync and rename (never half-written).
+/// {"tip_pointer_mm": [x, y, z], "source": "...", "rms_mm": r, "calibrated_utc": "..."}.
+std::optional<Eigen::Vector3d> read_stored_tip(const std::filesystem::path& p, std::string& source, std::string& problem) {
+    std::error_code ec;
+    if (!std::filesystem::exists(p, ec)) return std::nullopt;
+    std::ifstream in(p);
+    const json j = json::parse(in, nullptr, false);
+    const json t = j.is_object() ? j.value("tip_pointer_mm", json()) : json();
+    if (!t.is_array() || t.size() != 3) {
+        problem = p.string() + ": tip_pointer_mm is not [x, y, z]";
+        return std::nullopt;
+    }
+    Eigen::Vector3d v;
+    for (int i = 0; i < 3; ++i) {
+        if (!t[i].is_number() || !std::isfinite(t[i].get<double>()) || std::abs(t[i].get<double>()) > 1000) {
+            problem = p.string() + ": tip_pointer_mm[" + std::to_string(i) + "] is not a number within +-1000 mm";
+            return std::nullopt;
+        }
+        v[i] = t[i].get<double>();
+    }
+    source = "stored " + j.value("source", std::string("pivot calibration")) + " (" + j.value("calibrated_utc", std::string("?")) + ")";
+    return v;
+}
+
+void write_stored_tip(const std::filesystem::path& p, const json& j) {
+    const std::filesystem::path tmp = p.string() + ".tmp";
+    const std::string text = j.dump(1) + "\n";
+    std::FILE* f = std::fopen(tmp.c_str(), "wb");
+    bool ok = f && std::fwrite(text.data(), 1, text.size(), f) == text.size() && std::fflush(f) == 0 && ::fsync(::fileno(f)) == 0;
+    if (f) ok = std::fclose(f) == 0 && ok;
+    std::error_code ec;
+    if (ok) std::filesystem::rename(tmp, p, ec);
+    if (!ok || ec) {
+        std::filesystem::remove(tmp, ec);
+        throw ApiError(500, "internal", "pivot: the calibration could not be stored in " + p.string());
+    }
+}
 
 Eigen::Matrix4d mat4(const json& v, const std::string& what) {
     if (!v.is_array() || v.size() != 4) throw bad(what, "must be 4 rows of 4 numbers");
@@ -495,6 +537,13 @@ void register_navigation_endpoints(EndpointRegistry& reg, CaseStore& store, Trac
     CaseStore* st = &store;
     TrackerModule* tr = &tracker;
     auto tip_state = std::make_shared<PointerTip>(Eigen::Vector3d(options.tip_pointer_mm[0], options.tip_pointer_mm[1], options.tip_pointer_mm[2]));
+    // The last applied pivot calibration survives a restart (docs/api/navigation.md).
+    const std::filesystem::path tip_file = options.tip_file.empty() ? store.dir() / "pointer_tip.json" : options.tip_file;
+    {
+        std::string source, problem;
+        if (const auto t = read_stored_tip(tip_file, source, problem)) tip_state->set(*t, source);
+        else if (!problem.empty()) tip_state->set(tip_state->get(), "default (the stored calibration is unusable: " + problem + ")");
+    }
     auto slices = std::make_shared<SliceSource>();
     slices->bundled = std::make_shared<SliceVolume>(options.t1_path);
     slices->store = st;
@@ -625,7 +674,7 @@ void register_navigation_endpoints(EndpointRegistry& reg, CaseStore& store, Trac
 
     reg.add({"POST", "/api/navigation/pivot", "navigation.pivot", Access::write,
              "Pivot calibration of the pointer tip: poses collected for `seconds` while the tip rests in a divot and the handle swivels: {seconds?, pointer?, min_spread_deg?, apply?}",
-             [tr, tip_state](const Request& r) {
+             [tr, tip_state, tip_file](const Request& r) {
                  const json b = body_object(r, "pivot", {"seconds", "pointer", "min_spread_deg", "apply"});
                  const double seconds = number(b, "seconds", 5.0, 0.5, 30.0, "pivot");
                  const double min_spread = number(b, "min_spread_deg", 10.0, 0.0, 90.0, "pivot");
@@ -675,6 +724,9 @@ void register_navigation_endpoints(EndpointRegistry& reg, CaseStore& store, Trac
                      }
                      std::snprintf(buf, sizeof buf, "pivot calibration: rms %.2f mm over %zu poses, spread %.1f deg", pr.rms_mm, poses.size(),
                                    pr.rotation_spread_deg);
+                     write_stored_tip(tip_file, {{"tip_pointer_mm", vec_json(pr.tip_tool_mm)}, {"source", buf}, {"rms_mm", pr.rms_mm},
+                                                 {"rotation_spread_deg", pr.rotation_spread_deg}, {"poses", poses.size()},
+                                                 {"calibrated_utc", format_utc(system_now_utc())}});
                      tip_state->set(pr.tip_tool_mm, buf);
                      out["applied"] = true;
                  }

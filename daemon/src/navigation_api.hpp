@@ -27,8 +27,11 @@ struct NavigationOptions {
     std::filesystem::path t1_path;  ///< the MRI the slices are cut from (data.t1)
     /// Where the pointer's tip is in the pointer tool's frame (mm). NDI's pointer .rom files
     /// put the tool's origin at the calibrated tip, as the simulator's pointer does: zero.
-    /// POST /api/navigation/pivot {apply: true} replaces it (in memory) while the daemon runs.
+    /// POST /api/navigation/pivot {apply: true} replaces it and stores it in `tip_file`, which
+    /// is read at start (so an applied calibration survives a restart).
     double tip_pointer_mm[3] = {0, 0, 0};
+    /// The stored pivot calibration; empty: pointer_tip.json in the case store's folder.
+    std::filesystem::path tip_file;
     /// Where a case's stored volumes are staged for the reader (slices with ?case_id=).
     std::filesystem::path work_dir = std::filesystem::temp_directory_path();
 };

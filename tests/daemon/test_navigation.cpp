@@ -18,6 +18,7 @@
 #include <cstdio>
 #include <chrono>
 #include <filesystem>
+#include <fstream>
 #include <opencv2/imgcodecs.hpp>
 #include <thread>
 
@@ -408,6 +409,36 @@ TEST(Navigation, PivotCalibrationFindsTheTipAndTheRecordingsUseIt) {
     EXPECT_EQ(post("/api/tracker/sim/pointer", {{"T_reference_from_pointer", {{1, 0, 0, 0}, {0, 2, 0, 0}, {0, 0, 1, 0}, {0, 0, 0, 1}}}}).status, 400);
     EXPECT_LT((v3(get("/api/navigation/pointer").j["tip_pointer_mm"]) - tip_true).norm(), 0.5);
     sim_pointer({{"free", true}});
+
+    // The applied calibration survives a restart: a second daemon on the same state folder (the
+    // store's pointer_tip.json) starts with it; an unusable file falls back to the default, saying so.
+    const fs::path tip_file = g_state / "store" / "pointer_tip.json";
+    ASSERT_TRUE(fs::exists(tip_file));
+    const auto pointer_after_restart = [&] {
+        json c = default_config_json();
+        c["http"]["listen"] = "127.0.0.1:0";
+        c["state_dir"] = (g_state / "restarted").string();  // its own scratch (work/ is emptied at start)
+        c["store"]["dir"] = (g_state / "store").string();    // the same store
+        c["tracker"]["enabled"] = false;
+        c["camera"]["backend"] = "none";
+        c["jobs"]["phantom_cases_at_start"] = 0;
+        Daemon d2(parse_config(c, "test"));
+        d2.start();
+        httplib::Client cl("127.0.0.1", d2.port());
+        auto res = cl.Get("/api/navigation/pointer");
+        json j = res ? json::parse(res->body, nullptr, false) : json();
+        EXPECT_TRUE(d2.stop());
+        return j;
+    };
+    json j = pointer_after_restart();
+    ASSERT_TRUE(j.is_object()) << j.dump();
+    EXPECT_LT((v3(j["tip_pointer_mm"]) - tip_true).norm(), 0.5) << j.dump();
+    EXPECT_EQ(j["tip_source"].get<std::string>().rfind("stored pivot calibration", 0), 0u) << j.dump();
+    { std::ofstream(tip_file) << R"({"tip_pointer_mm": [1, "x", 3]})"; }
+    j = pointer_after_restart();
+    EXPECT_LT(v3(j["tip_pointer_mm"]).norm(), 1e-9) << j.dump();
+    EXPECT_NE(j["tip_source"].get<std::string>().find("unusable"), std::string::npos) << j.dump();
+    fs::remove(tip_file);
 }
 
 TEST(Navigation, TriPlanarSlicesAndSuggestedFiducials) {
