@@ -159,3 +159,30 @@ export function pivotLine(p: PivotAnswer): string {
 export function fmtPoint(p: Vec3 | null): string {
   return p ? `(${p.map((v) => v.toFixed(1)).join(", ")}) mm` : "—";
 }
+
+/** The LPS mm point under a tap on the tri-planar image of GET /api/navigation/slices centred at
+ *  `centre` (x, y: continuous pixel coordinates of the whole image, 0..3*size by 0..size, as the
+ *  daemon samples them: panel u/v axes axial (+x, +y), coronal (+x, -z), sagittal (+y, -z), fovMm
+ *  across each panel). Null outside the image. */
+export function sliceTapToImageMm(centre: Vec3, x: number, y: number, size: number, fovMm = 220): Vec3 | null {
+  if (!(x >= 0 && x < 3 * size && y >= 0 && y <= size)) return null;
+  const panel = Math.min(2, Math.floor(x / size));
+  const px = fovMm / size;
+  const du = (x - panel * size - size / 2) * px, dv = (y - size / 2) * px;
+  const axes: [Vec3, Vec3][] = [[[1, 0, 0], [0, 1, 0]], [[1, 0, 0], [0, 0, -1]], [[0, 1, 0], [0, 0, -1]]];
+  const [u, v] = axes[panel];
+  return [0, 1, 2].map((i) => centre[i] + du * u[i] + dv * v[i]) as Vec3;
+}
+
+/** The image fiducials with `label` placed at `p` (moved when it exists, else added). */
+export function placeFiducial(fids: { label: string; p_image_mm: Vec3 }[], label: string, p: Vec3): { label: string; p_image_mm: Vec3 }[] {
+  const out = fids.map((f) => (f.label === label ? { label, p_image_mm: p } : { label: f.label, p_image_mm: f.p_image_mm }));
+  if (!fids.some((f) => f.label === label)) out.push({ label, p_image_mm: p });
+  return out;
+}
+
+/** A new fiducial's label: F1, F2, ... not yet used. */
+export function newFiducialLabel(fids: { label: string }[]): string {
+  const used = new Set(fids.map((f) => f.label));
+  for (let i = 1; ; i++) if (!used.has(`F${i}`)) return `F${i}`;
+}

@@ -6,7 +6,8 @@ import "./tracker_screen.css";
 import { apiBlob, apiJson, plainMessage } from "./api";
 import { h } from "./dom";
 import {
-  canRegister, fiducialLines, fmtPoint, freVerdict, needsNewSlices, nextFiducial, pivotLine, pointerInImage, rateView, slicesPath, tipLine, toolViews,
+  canRegister, fiducialLines, fmtPoint, freVerdict, needsNewSlices, newFiducialLabel, nextFiducial, pivotLine, placeFiducial, pointerInImage, rateView,
+  sliceTapToImageMm, slicesPath, tipLine, toolViews,
   type NavState, type PivotAnswer, type PointerAnswer, type Registration, type Vec3,
 } from "./tracker_model";
 
@@ -38,11 +39,12 @@ export function trackerScreen(caseId: number, body: HTMLElement, deps: TrackerSc
   const sliceCaption = h("p", { class: "muted nav-caption", "data-testid": "tracker-slice-caption" }, "Waiting for the tracker…");
   const tipText = h("p", { class: "muted", "data-testid": "tip-line" }, "");
   const pivot = h("button", { class: "btn", type: "button", "data-testid": "pivot-btn", hidden: !deps.writable }, "Calibrate tip (pivot, 5 s)");
+  const placeFid = h("button", { class: "btn", type: "button", "data-testid": "place-fid-btn", hidden: !deps.writable }, "Place fiducial on the MRI");
   const left = h("section", { class: "panel nav-live" },
     h("div", { class: "nav-row" }, h("h2", {}, "Tools"), rate), tools,
     h("div", { class: "nav-row" }, h("span", { class: "grow" }, tipText), pivot),
     h("div", { class: "nav-slice-labels" }, h("span", {}, "Axial"), h("span", {}, "Coronal"), h("span", {}, "Sagittal")),
-    sliceImg, sliceCaption);
+    sliceImg, sliceCaption, h("div", { class: "nav-row" }, placeFid));
 
   // ---- right: patient registration ----
   const list = h("div", { class: "nav-fids", "data-testid": "fid-list" });
@@ -175,6 +177,32 @@ export function trackerScreen(caseId: number, body: HTMLElement, deps: TrackerSc
       pivot.textContent = "Calibrate tip (pivot, 5 s)";
     }
   }));
+  // Image fiducials by touch on the slices: with "Place fiducial" on, a tap puts the selected
+  // fiducial (or a new one, F<n>) at the point the tapped slice shows there.
+  let placing = false;
+  const showPlacing = () => {
+    placeFid.classList.toggle("active", placing);
+    placeFid.textContent = placing ? `Tap the slices: ${selected ? `move “${selected}”` : "a new fiducial"}` : "Place fiducial on the MRI";
+    sliceImg.classList.toggle("placing", placing);
+  };
+  placeFid.addEventListener("click", () => { placing = !placing; showPlacing(); });
+  list.addEventListener("click", () => { if (placing) showPlacing(); });
+  sliceImg.addEventListener("click", (e) => {
+    if (!placing || !nav || !sliceImg.dataset.point) return;
+    const r = sliceImg.getBoundingClientRect();
+    const centre = sliceImg.dataset.point.split(",").map(Number) as Vec3;
+    const p = sliceTapToImageMm(centre, ((e.clientX - r.left) / r.width) * 3 * SLICE_PX, ((e.clientY - r.top) / r.height) * SLICE_PX, SLICE_PX);
+    if (!p) return;
+    const fids = nav.image_fiducials.fiducials;
+    const label = selected && fids.some((f) => f.label === selected) ? selected : newFiducialLabel(fids);
+    void act(async () => {
+      await apiJson("POST", `${base}/image-fiducials`, { fiducials: placeFiducial(fids, label, p) });
+      selected = label;
+      say(`Fiducial “${label}” placed on the MRI at ${fmtPoint(p)}.`, false);
+      await reload();
+      showPlacing();
+    });
+  });
   redo.addEventListener("click", () => act(async () => {
     await apiJson("DELETE", `${base}/patient-fiducials`);
     selected = null;
