@@ -550,3 +550,52 @@ TEST(CaseMultimodal, SettingsChangeWithoutUploadingAVolumeAgain) {
 }
 
 }  // namespace
+
+namespace {
+
+// A daemon with the CPU ray caster: a multimodal request is refused naming the reason, and the
+// T1 alone still renders.
+TEST(CaseMultimodal, TheCpuRendererRefusesLayersNamingWhy) {
+    port();  // the shared test data
+    const fs::path state = fs::temp_directory_path() / ("cf_daemon_case_render_cpu_" + std::to_string(::getpid()));
+    json c = test_config(state);
+    c["renderer"]["kind"] = "cpu";
+    c["data"]["t1"] = data().t1_path.string();
+    Daemon d(parse_config(c, "test"));
+    d.start();
+    auto req = [&](const std::string& method, const std::string& path, const std::string& body, const std::string& mime) {
+        httplib::Client cl("127.0.0.1", d.port());
+        cl.set_read_timeout(180, 0);
+        auto r = method == "GET" ? cl.Get(path.c_str()) : cl.Post(path.c_str(), body, mime.c_str());
+        Reply out;
+        if (r) {
+            out.status = r->status;
+            out.body = r->body;
+            out.j = json::parse(r->body, nullptr, false);
+        }
+        return out;
+    };
+    const std::int64_t id = req("POST", "/api/cases", json{{"title", "cpu"}}.dump(), "application/json").j.value("id", std::int64_t{0});
+    for (const auto& [name, mod, bytes] : {std::tuple{"t1.nii.gz", "T1", &data().t1_bytes}, std::tuple{"mask.nii.gz", "mask", &data().mask_bytes},
+                                           std::tuple{"ct.nii.gz", "CT", &data().ct_bytes}})
+        ASSERT_EQ(req("POST", base(id) + "/volumes?name=" + name + "&modality=" + mod, *bytes, "application/octet-stream").status, 201);
+    const Reply job = req("POST", "/api/jobs", json{{"kind", "plan"}, {"params", {{"case_id", id}, {"max_triangles", 5000}}}}.dump(), "application/json");
+    ASSERT_EQ(job.status, 202) << job.body;
+    std::string state_s;
+    for (int i = 0; i < 2400 && state_s != "succeeded" && state_s != "failed"; ++i) {
+        std::this_thread::sleep_for(std::chrono::milliseconds(50));
+        state_s = req("GET", "/api/jobs/" + std::to_string(job.j["id"].get<int>()), "", "").j.value("state", std::string());
+    }
+    ASSERT_EQ(state_s, "succeeded");
+    json b = {{"width", 48}, {"height", 36}, {"view", "left"}, {"case_id", id}};
+    b["modalities"] = json::array({{{"name", "t1"}}, {{"name", "ct"}}});
+    const Reply r = req("POST", "/api/render", b.dump(), "application/json");
+    EXPECT_EQ(r.status, 409) << r.body;
+    EXPECT_NE(r.body.find("need the GL renderer"), std::string::npos) << r.body;
+    b.erase("modalities");
+    EXPECT_EQ(req("POST", "/api/render", b.dump(), "application/json").status, 200);
+    EXPECT_TRUE(d.stop());
+    fs::remove_all(state);
+}
+
+}  // namespace
