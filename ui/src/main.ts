@@ -14,6 +14,7 @@ import { centreLps, gunzipIfNeeded, parseNifti, type Volume as NiftiVolume } fro
 import { orbitCamera } from "./fused_pose";
 import { mountTags, type Intrinsics } from "./tags";
 import { mountLiveView } from "./live_view";
+import { planScreen, type PlanJob } from "./plan_screen";
 import type { TfJson } from "./tf_model";
 import { canWrite, KIOSK, loadSession, roleLabel, saveSession, sessionFromLogin, wsUrl, type Session } from "./session";
 import { auditRows, fmtBytes, fmtTime, holdings, patientLine, registrationRows, type AuditEntry, type CaseRecord } from "./case_detail";
@@ -30,6 +31,7 @@ interface Job {
 const jobs = new Map<number, Job>();
 const nmiSeries = new Map<number, NmiPoint[]>();
 let jobsListener: (() => void) | null = null;
+const jobSubscribers = new Set<(j: Job) => void>(); // screens that follow jobs (the Preoperative step)
 
 const app = document.getElementById("app")!;
 const statusBar = h("header", { class: "statusbar", "data-testid": "statusbar" });
@@ -251,6 +253,7 @@ function upsertJob(j: Job): void {
     nmiSeries.set(j.id, s);
   }
   jobsListener?.();
+  for (const f of jobSubscribers) f(j);
 }
 async function loadJobs(): Promise<void> {
   if (needLogin) return;
@@ -401,7 +404,7 @@ interface VolumeGeometry { center_lps_mm: Vec3; radius_mm: number; dims?: number
 const pendingModelPoints = new Map<number, Vec3[]>();
 const BRAIN_PRESETS = new Set(["cortex_t1", "surface_white"]);
 
-const CASE_TABS: [string, string][] = [["view", "3D view"], ["contents", "Contents"], ["photo", "Photo & marks"], ["fused", "Fused"], ["tracker", "Tracker"], ["audit", "Audit trail"]];
+const CASE_TABS: [string, string][] = [["view", "3D view"], ["contents", "Contents"], ["plan", "Preoperative"], ["photo", "Photo & marks"], ["fused", "Fused"], ["tracker", "Tracker"], ["audit", "Audit trail"]];
 
 /** The case's header (back, title, state) and its sub-screens; `onCase` gets the record, `onMissing`
  *  runs when it cannot be read (after the banner). */
@@ -429,7 +432,12 @@ function caseScreen(id: number, sub: string): void {
   };
   if (sub === "contents") caseContents(id, body, () => alive, got, missing);
   else if (sub === "audit") caseAudit(id, body, () => alive, got, missing);
-  else if (sub === "photo") casePhoto(id, body, () => alive, got, missing, (f) => { const prev = leaveScreen; leaveScreen = () => { prev?.(); f(); }; });
+  else if (sub === "plan") {
+    apiJson<CaseRecord>("GET", `/api/cases/${id}`).then((c) => { if (alive) got(c); }, missing);
+    planScreen(id, body, { alive: () => alive, writable: canWrite(session), showError,
+      onLeave: (f) => { const prev = leaveScreen; leaveScreen = () => { prev?.(); f(); }; },
+      onJob: (f) => { const g = (j: Job) => f(j as PlanJob); jobSubscribers.add(g); return () => { jobSubscribers.delete(g); }; } });
+  } else if (sub === "photo") casePhoto(id, body, () => alive, got, missing, (f) => { const prev = leaveScreen; leaveScreen = () => { prev?.(); f(); }; });
   else if (sub === "tracker") {
     apiJson<CaseRecord>("GET", `/api/cases/${id}`).then((c) => { if (alive) got(c); }, missing);
     trackerScreen(id, body, { alive: () => alive, writable: canWrite(session), showError, showNotice, onLeave: (f) => { const prev = leaveScreen; leaveScreen = () => { prev?.(); f(); }; } });
