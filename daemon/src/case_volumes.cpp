@@ -1,6 +1,7 @@
 #include "case_volumes.hpp"
 
 #include <fstream>
+#include <thread>
 
 #include "case_api.hpp"
 #include "cortexfuse/core/error.hpp"
@@ -113,16 +114,27 @@ std::shared_ptr<const LoadedCaseVolume> CaseVolumeCache::get(const CaseVolumeRef
     auto out = std::make_shared<LoadedCaseVolume>();
     out->ref = ref;
     try {
-        const fs::path vf = dir / ref.volume_name;
-        store_.copy_blob_to(ref.volume_sha, vf);
-        out->volume = load_volume(vf);
-        if (!ref.mask_sha.empty()) {
-            const fs::path mf = dir / ref.mask_name;
-            store_.copy_blob_to(ref.mask_sha, mf);
-            LabelVolume m = load_mask(mf);
-            if (!m.geom.same_grid(out->volume.geom)) m = resample_nearest(m, out->volume.geom);
-            out->brain_mask = std::move(m);
-        }
+        // ITK's readers go deeper than civetweb's connection threads' small stacks allow (under
+        // ASan by far): the load runs on a thread of its own with the default stack.
+        std::exception_ptr err;
+        std::thread t([&] {
+            try {
+                const fs::path vf = dir / ref.volume_name;
+                store_.copy_blob_to(ref.volume_sha, vf);
+                out->volume = load_volume(vf);
+                if (!ref.mask_sha.empty()) {
+                    const fs::path mf = dir / ref.mask_name;
+                    store_.copy_blob_to(ref.mask_sha, mf);
+                    LabelVolume m = load_mask(mf);
+                    if (!m.geom.same_grid(out->volume.geom)) m = resample_nearest(m, out->volume.geom);
+                    out->brain_mask = std::move(m);
+                }
+            } catch (...) {
+                err = std::current_exception();
+            }
+        });
+        t.join();
+        if (err) std::rethrow_exception(err);
     } catch (const StoreError& e) {
         rethrow_store_error(e);
     } catch (const InputError& e) {
