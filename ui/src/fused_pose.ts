@@ -24,3 +24,20 @@ export function orbitCamera(T: Mat4, yawDeg: number, pitchDeg: number, pivotDept
 export function depthOf(T: Mat4, p: number[]): number {
   return T[2][0] * p[0] + T[2][1] * p[1] + T[2][2] * p[2] + T[2][3];
 }
+
+/** `T` with the camera moved along its own axes: the scene shifted by (dxMm, dyMm) in the
+ *  camera's x/y (right, down) and the camera dzMm closer along its view axis. */
+export function translateCamera(T: Mat4, dxMm: number, dyMm: number, dzMm: number): Mat4 {
+  return mul([[1, 0, 0, dxMm], [0, 1, 0, dyMm], [0, 0, 1, -dzMm], [0, 0, 0, 1]], T);
+}
+
+/** Pinch and two-finger pan: the fingers' distance grew by `scale` (clamped 0.25..4) and their
+ *  midpoint moved (duPx, dvPx) view pixels. The point at `pivotDepthMm` in front of the camera
+ *  looks `scale` times bigger (the camera comes to pivotDepthMm / scale from it) and follows the
+ *  fingers (a pixel is depth / focalPx mm there). Returns the pose and the pivot's new depth. */
+export function pinchPan(T: Mat4, scale: number, duPx: number, dvPx: number, pivotDepthMm: number, focalPx: number): { T: Mat4; pivotDepthMm: number } {
+  const s = Math.min(4, Math.max(0.25, scale));
+  const depth = Math.max(30, pivotDepthMm / s);
+  const dz = pivotDepthMm - depth;
+  return { T: translateCamera(T, (duPx * depth) / focalPx, (dvPx * depth) / focalPx, dz), pivotDepthMm: depth };
+}

@@ -11,7 +11,7 @@ import { LinkMonitor, restartNote, TrackerMonitor } from "./link";
 import { dragOrbit, NAMED_VIEWS, namedViewOf, orbitPose, zoomOrbit, type Orbit, type Vec3 } from "./orbit";
 import { TfEditor } from "./tf_editor";
 import { centreLps, gunzipIfNeeded, parseNifti, type Volume as NiftiVolume } from "./nifti";
-import { orbitCamera } from "./fused_pose";
+import { orbitCamera, pinchPan } from "./fused_pose";
 import { mountTags, type Intrinsics } from "./tags";
 import { mountLiveView } from "./live_view";
 import { planScreen, type PlanJob } from "./plan_screen";
@@ -901,7 +901,9 @@ function caseFused(id: number, body: HTMLElement, alive: Alive, got: (c: CaseRec
                           canWrite: !document.body.classList.contains("read-only"), showError });
     // Drag: 0.3 degrees a pixel about the point the camera looks at (at the registered distance).
     let drag: { x: number; y: number; T: number[][] } | null = null;
-    const pivot = Math.abs(T0[2][3]) > 1 ? Math.hypot(T0[0][3], T0[1][3], T0[2][3]) : 300;
+    const pivot0 = Math.abs(T0[2][3]) > 1 ? Math.hypot(T0[0][3], T0[1][3], T0[2][3]) : 300;
+    let pivot = pivot0; // a pinch brings the camera closer to it
+    snapBtn.addEventListener("click", () => { pivot = pivot0; });
     stage.addEventListener("pointerdown", (e) => { drag = { x: e.clientX, y: e.clientY, T }; stage.setPointerCapture(e.pointerId); });
     stage.addEventListener("pointerup", (e) => {
       if (!drag) return;
@@ -912,6 +914,32 @@ function caseFused(id: number, body: HTMLElement, alive: Alive, got: (c: CaseRec
       T = orbitCamera(from, -0.3 * dx, 0.3 * dy, pivot);
       void renderTextured();
     });
+    // Two fingers: pinch to zoom, move both to pan (fused_pose.ts pinchPan), applied when they lift.
+    const fingers = new Map<number, { x: number; y: number }>();
+    let pinch: { d0: number; cx: number; cy: number; T: number[][] } | null = null;
+    const spread = () => { const [a, b] = [...fingers.values()]; return { d: Math.hypot(a.x - b.x, a.y - b.y), cx: (a.x + b.x) / 2, cy: (a.y + b.y) / 2 }; };
+    stage.addEventListener("pointerdown", (e) => {
+      fingers.set(e.pointerId, { x: e.clientX, y: e.clientY });
+      if (fingers.size === 2) { const s = spread(); pinch = { d0: Math.max(1, s.d), cx: s.cx, cy: s.cy, T }; drag = null; }
+    });
+    stage.addEventListener("pointermove", (e) => { if (fingers.has(e.pointerId)) fingers.set(e.pointerId, { x: e.clientX, y: e.clientY }); });
+    const lift = (e: PointerEvent) => {
+      if (pinch && fingers.size === 2) {
+        const s = spread(), r = stage.getBoundingClientRect();
+        const cssPerPx = Math.min(r.width / w, r.height / hh) || 1; // the picture is fitted (object-fit: contain)
+        const fView = (photo.intrinsics as { fx: number }).fx * (w / K.width);
+        const z = pinchPan(pinch.T, s.d / pinch.d0, (s.cx - pinch.cx) / cssPerPx, (s.cy - pinch.cy) / cssPerPx, pivot, fView);
+        T = z.T;
+        pivot = z.pivotDepthMm;
+        pinch = null;
+        void renderTextured();
+      }
+      fingers.delete(e.pointerId);
+      if (fingers.size < 2) pinch = null;
+      drag = null; // the other finger's lift is no turn
+    };
+    stage.addEventListener("pointerup", lift);
+    stage.addEventListener("pointercancel", lift);
     void renderTextured();
   }, missing);
 }
