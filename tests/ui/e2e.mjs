@@ -7,6 +7,7 @@ import fs from "node:fs";
 import os from "node:os";
 import path from "node:path";
 import { trackerE2E } from "./e2e_tracker.mjs";
+import { liveViewE2E, planCheckE2E, tagsE2E } from "./e2e_live_tags.mjs";
 
 const [daemonBin, uiDir, artDir] = process.argv.slice(2).map((p) => path.resolve(p));
 const CHROMIUM = process.env.CF_CHROMIUM ?? "/usr/bin/chromium";
@@ -293,6 +294,8 @@ try {
     await page.getByTestId("capture-photo").tap();
     await page.getByTestId("case-holdings").filter({ hasText: "2 photos" }).waitFor({ timeout: 60000 });
     step("photo captured from the camera into the new case");
+    // The Photo screen's live view and Capture (e2e_live_tags.mjs).
+    await liveViewE2E({ page, base, step, expect, shot, checkTargets, caseId: createdId });
   }
 
   // ---- A case of the store: import the phantom folder, see what it holds, move a landmark's
@@ -428,6 +431,7 @@ try {
     if (planned) {
       expect(await planCard.getAttribute("data-state") === "succeeded", "the case's plan succeeded");
       step(`plan of case ${importedId} succeeded in ${((Date.now() - tPlan) / 1000).toFixed(1)} s`);
+      await planCheckE2E({ page, step, expect, shot, checkTargets, caseId: importedId });
       await page.evaluate((id) => { location.hash = `#/case/${id}/fused`; }, importedId);
       const tTex = Date.now();
       await page.waitForFunction(() => document.querySelector('[data-testid="fused-model"]')?.dataset.textured === "true" &&
@@ -443,6 +447,8 @@ try {
       await page.getByTestId("fused-camera-view").tap();
       await page.waitForFunction(() => document.querySelector('[data-testid="fused-stage"]')?.dataset.atCamera === "true", null, { timeout: 30000 });
       step("fused view turned by a drag and back to the camera's view");
+      // Stimulation tags placed on the photo by touch, shown in 3D (e2e_live_tags.mjs).
+      await tagsE2E({ page, step, expect, shot, checkTargets, caseId: importedId, touchDrag });
     } else {
       await page.locator(`[data-testid="job-card"][data-state="running"][data-case-id="${importedId}"]`).filter({ hasText: "plan" })
         .getByTestId("cancel-job").tap().catch(() => {});

@@ -9,7 +9,7 @@ import { gunzipIfNeeded, parseNifti, type Volume } from "./nifti";
 import "./plan_screen.css";
 
 export interface PlanJob { id: number; kind: string; state: string; stage: string; fraction: number; error?: string; params?: Record<string, unknown> }
-interface CaseLite { volumes?: { id: number; modality: string; original_name: string }[]; results?: { id: number; kind: string; name: string; size_bytes: number; created_utc: string }[] }
+interface CaseLite { volumes?: { id: number; modality: string; original_name: string }[]; results?: { id: number; kind: string; name: string }[] }
 
 /** The newest plan job of the case (any state), or null. */
 export function planJobOf(jobs: PlanJob[], caseId: number): PlanJob | null {
@@ -101,7 +101,7 @@ export function planScreen(caseId: number, body: HTMLElement, deps: PlanDeps): v
     canvas.dataset.voxels = String(q.voxels);
     const ml = (q.voxels * vol.spacing[0] * vol.spacing[1] * vol.spacing[2]) / 1000;
     checkText.textContent = `Brain mask ${vol.dims.join("x")} voxels, ${ml.toFixed(0)} ml; slices through its centroid (voxel ${q.centroid.join(", ")}).` +
-      (surf ? ` Brain surface: ${surf.name}, ${(surf.size_bytes / 1e6).toFixed(1)} MB.` : "");
+      (surf ? ` Brain surface: ${surf.name} (result ${surf.id}).` : "");
   };
   const track = (j: PlanJob) => {
     if (j.kind !== "plan" || Number(j.params?.case_id) !== caseId || (job && j.id < job.id)) return;
