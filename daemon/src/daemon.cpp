@@ -103,8 +103,16 @@ public:
             live_error_.clear();  // a failure before this request is not its answer
         }
         q_cv_.notify_all();
+        // While a request waits the stream runs whatever the idle time (a slow camera's frame can
+        // take longer than kLiveIdle); the idle time counts from its answer.
+        ++live_waiters_;
         std::unique_lock lk(live_mu_);
         live_cv_.wait_for(lk, wait, [&] { return (live_frame_.sequence > after && !live_frame_.bgr.empty()) || !live_error_.empty(); });
+        --live_waiters_;
+        {
+            std::lock_guard qk(q_mu_);
+            live_until_ = std::chrono::steady_clock::now() + kLiveIdle;
+        }
         if (live_frame_.bgr.empty() || live_frame_.sequence <= after) {
             if (!live_error_.empty()) throw ApiError(503, "unavailable", "camera live view: " + live_error_);
             const std::string st = status_json().value("state", std::string("?"));
@@ -139,7 +147,7 @@ private:
             bool live = false;
             {
                 std::unique_lock lk(q_mu_);
-                const auto wants_live = [&] { return live_until_ > std::chrono::steady_clock::now(); };
+                const auto wants_live = [&] { return live_waiters_ > 0 || live_until_ > std::chrono::steady_clock::now(); };
                 if (!live_on_) q_cv_.wait(lk, [&] { return stop_ || !queue_.empty() || wants_live(); });
                 if (stop_) break;  // abandoned tasks answer broken_promise to their callers
                 if (!queue_.empty()) {
@@ -197,8 +205,9 @@ private:
                 error_ = e.what();
             }
             stop_live();
-            std::lock_guard lk(q_mu_);
+            std::unique_lock lk(q_mu_);
             live_until_ = {};  // the next request starts it again
+            q_cv_.wait_for(lk, std::chrono::milliseconds(500), [&] { return stop_; });  // a failing camera is retried at most twice a second
         }
     }
     void stop_live() {
@@ -276,6 +285,7 @@ private:
     static constexpr std::chrono::milliseconds kLiveIdle{2000};
     std::chrono::steady_clock::time_point live_until_{};
     std::atomic<bool> live_on_{false};
+    std::atomic<int> live_waiters_{0};  // live requests waiting for a frame
     std::mutex live_mu_;
     std::condition_variable live_cv_;
     cf::camera::Frame live_frame_;  // newest frame (live_mu_)
