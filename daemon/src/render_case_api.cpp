@@ -232,37 +232,56 @@ void register_render_case_endpoints(EndpointRegistry& reg, RenderModule& render,
                  });
              }});
 
+    // The histogram answer of a loaded volume (a stored volume, or a plan volume on the T1 grid).
+    auto histogram = [](const Request& r, const LoadedCaseVolume& vol) {
+        int bins = 256;
+        if (auto it = r.params.find("bins"); it != r.params.end()) {
+            std::size_t n = 0;
+            long long b = -1;
+            try {
+                b = std::stoll(it->second, &n);
+            } catch (const std::exception&) {
+                n = 0;
+            }
+            if (n != it->second.size() || b < 8 || b > 1024)
+                throw ApiError(400, "bad_request", "histogram bins: '" + it->second.substr(0, 20) + "' must be an integer 8..1024");
+            bins = int(b);
+        }
+        const LabelVolume* m = vol.brain_mask ? &*vol.brain_mask : nullptr;
+        json norm{{"whole", histogram_json(vol.volume, m, robust_range(vol.volume, nullptr), bins)}};
+        norm["brain_only"] = m ? histogram_json(vol.volume, m, robust_range(vol.volume, m), bins) : json(nullptr);
+        return json{{"case_id", vol.ref.case_id},
+                    {"modality", vol.ref.modality},
+                    {"source", vol.ref.source},
+                    {"bins", bins},
+                    {"voxels", vol.volume.voxels.size()},
+                    {"brain_mask", vol.ref.mask_source.empty() ? json(nullptr) : json(vol.ref.mask_source)},
+                    {"x", "normalized transfer-function units: bin b holds (intensity - range[0]) / (range[1] - range[0]) in [b, b + 1) / bins"},
+                    {"normalizations", norm}};
+    };
     reg.add({"GET", "/api/cases/{id}/volumes/{volume_id}/histogram", "cases.volume_histogram", Access::read,
              "Intensity histogram of a case volume in the transfer functions' normalized units (?bins=8..1024), inside and outside its brain mask",
-             [st, cache](const Request& r) {
+             [st, cache, histogram](const Request& r) {
                  return guarded([&] {
                      const std::int64_t id = case_id_param(r);
                      const std::int64_t vid = case_id_param(r, "volume_id");
-                     int bins = 256;
-                     if (auto it = r.params.find("bins"); it != r.params.end()) {
-                         std::size_t n = 0;
-                         long long b = -1;
-                         try {
-                             b = std::stoll(it->second, &n);
-                         } catch (const std::exception&) {
-                             n = 0;
-                         }
-                         if (n != it->second.size() || b < 8 || b > 1024)
-                             throw ApiError(400, "bad_request", "histogram bins: '" + it->second.substr(0, 20) + "' must be an integer 8..1024");
-                         bins = int(b);
-                     }
-                     const auto vol = cache->get(resolve_case_volume(*st, id, vid, "histogram"));
-                     const LabelVolume* m = vol->brain_mask ? &*vol->brain_mask : nullptr;
-                     json norm{{"whole", histogram_json(vol->volume, m, robust_range(vol->volume, nullptr), bins)}};
-                     norm["brain_only"] = m ? histogram_json(vol->volume, m, robust_range(vol->volume, m), bins) : json(nullptr);
-                     return ok({{"case_id", id},
-                                {"volume_id", vid},
-                                {"modality", vol->ref.modality},
-                                {"bins", bins},
-                                {"voxels", vol->volume.voxels.size()},
-                                {"brain_mask", vol->ref.mask_source.empty() ? json(nullptr) : json(vol->ref.mask_source)},
-                                {"x", "normalized transfer-function units: bin b holds (intensity - range[0]) / (range[1] - range[0]) in [b, b + 1) / bins"},
-                                {"normalizations", norm}});
+                     json j = histogram(r, *cache->get(resolve_case_volume(*st, id, vid, "histogram")));
+                     j["volume_id"] = vid;
+                     return ok(j);
+                 });
+             }});
+    reg.add({"GET", "/api/cases/{id}/plan/{modality}/histogram", "cases.plan_histogram", Access::read,
+             "Intensity histogram of the newest plan's CT or fMRI on the T1 grid (modality ct | fmri; ?bins=8..1024), as the volume histogram",
+             [st, cache, histogram](const Request& r) {
+                 return guarded([&] {
+                     const std::int64_t id = case_id_param(r);
+                     const auto it = r.params.find("modality");
+                     const std::string mod = it == r.params.end() ? std::string() : it->second;
+                     if (mod != "ct" && mod != "fmri") throw ApiError(400, "bad_request", "plan histogram modality: '" + mod.substr(0, 40) + "' must be ct or fmri");
+                     const CaseVolumeRef ref = resolve_plan_volume(*st, id, mod, "plan histogram " + mod);
+                     json j = histogram(r, *cache->get(ref));
+                     j["result_id"] = ref.volume_id;
+                     return ok(j);
                  });
              }});
 

@@ -515,6 +515,14 @@ TEST(CaseMultimodal, SettingsChangeWithoutUploadingAVolumeAgain) {
     upload(id, "ct.nii.gz", "CT", data().ct_bytes);
     const json planned = wait_job(submit_plan(id));
     ASSERT_EQ(planned.value("state", std::string()), "succeeded") << planned.dump();
+    // The plan's CT histogram (for its tab in the UI): in its own units; fMRI: none planned.
+    const Reply ch = get(base(id) + "/plan/ct/histogram?bins=32");
+    ASSERT_EQ(ch.status, 200) << ch.body;
+    EXPECT_EQ(ch.j["modality"], "CT");
+    EXPECT_EQ(ch.j["bins"], 32);
+    EXPECT_GT(ch.j["normalizations"]["whole"]["range"][1].get<double>(), 200.0) << "the CT's intensities (2 T1 + 100)";
+    EXPECT_EQ(get(base(id) + "/plan/fmri/histogram").status, 409);
+    EXPECT_EQ(get(base(id) + "/plan/pet/histogram").status, 400);
     json b = {{"width", 96}, {"height", 72}, {"view", "anterior"}, {"format", "png"}, {"case_id", id}};
     b["modalities"] = json::array({{{"name", "t1"}, {"transfer_function", "cortex_t1"}, {"weight", 1.0}},
                                    {{"name", "ct"}, {"transfer_function", "ct_bone"}, {"weight", 0.6}, {"visible", true}}});

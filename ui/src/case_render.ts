@@ -64,6 +64,12 @@ export function histogramPath(caseId: number, volumeId: number, bins = 128): str
   return `/api/cases/${caseId}/volumes/${volumeId}/histogram?bins=${bins}`;
 }
 
+/** The histogram of a layer: the stored T1's, or the plan's CT / fMRI on the T1 grid. */
+export function layerHistogramPath(caseId: number, layer: ModalityName, t1VolumeId: number | null, bins = 128): string | null {
+  if (layer === "t1") return t1VolumeId === null ? null : histogramPath(caseId, t1VolumeId, bins);
+  return `/api/cases/${caseId}/plan/${layer}/histogram?bins=${bins}`;
+}
+
 /** Bar heights 0..1 (log scale: a few bright voxels stay visible beside the background) of the
  *  histogram in the units the rendered transfer function uses: over the brain's range and
  *  inside its mask when the view is brain only (and the volume has a mask), else every voxel

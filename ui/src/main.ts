@@ -19,7 +19,7 @@ import type { TfJson } from "./tf_model";
 import { canWrite, KIOSK, loadSession, roleLabel, saveSession, sessionFromLogin, wsUrl, type Session } from "./session";
 import { auditRows, fmtBytes, fmtTime, holdings, patientLine, registrationRows, type AuditEntry, type CaseRecord } from "./case_detail";
 import { trackerScreen } from "./tracker_screen";
-import { caseRenderFields, defaultLayers, histogramBars, histogramPath, ModalityTabs, newestT1, planModalities, type ModalityLayer, type VolumeHistogram } from "./case_render";
+import { caseRenderFields, defaultLayers, histogramBars, histogramPath, layerHistogramPath, ModalityTabs, newestT1, planModalities, type ModalityLayer, type VolumeHistogram } from "./case_render";
 
 // ---- shared state ------------------------------------------------------------------------
 interface CaseSummary { id: number; uid: string; title: string; state: string; created_utc: string; updated_utc: string }
@@ -976,6 +976,7 @@ function caseView(id: number, body: HTMLElement, aliveFn: Alive, got: (c: CaseRe
   let layers: ModalityLayer[] = defaultLayers(["t1"]);
   let tabs: ModalityTabs | null = null;
   let hist: VolumeHistogram | null = null;
+  const layerHist: Partial<Record<string, VolumeHistogram | null>> = {};  // ct / fmri, fetched when their tab is first shown
   let caseT1 = false;  // without a T1 of its own the case shows the daemon's MRI
   const tabsBox = h("div", { "data-testid": "modality-box" });
   const editor = new TfEditor((tf, final) => {
@@ -1078,7 +1079,9 @@ function caseView(id: number, body: HTMLElement, aliveFn: Alive, got: (c: CaseRe
   showOrbit();
   const showBrain = () => {
     brainBtn.classList.toggle("active", v.brainOnly); brainBtn.textContent = v.brainOnly ? "Brain only: on" : "Brain only: off";
-    editor.setHistogram(hist && (!tabs || tabs.selected.name === "t1") ? histogramBars(hist, v.brainOnly) : null);
+    const layer = tabs ? tabs.selected.name : "t1";
+    const hl = layer === "t1" ? hist : layerHist[layer] ?? null;
+    editor.setHistogram(hl ? histogramBars(hl, layer === "t1" && v.brainOnly) : null);  // only the T1 layer is masked
   };
   brainBtn.addEventListener("click", () => {
     if (!v.tf) { showError(new UserMessage("Brain only applies to an edited transfer function; the presets choose it themselves.")); return; }
@@ -1121,6 +1124,11 @@ function caseView(id: number, body: HTMLElement, aliveFn: Alive, got: (c: CaseRe
       tabs = new ModalityTabs(layers, (l) => {
         if (l.name === "t1") { if (v.tf) editor.load(v.tf); else if (tfs[v.preset]) editor.load(tfs[v.preset]); }
         else { const t = l.tf ?? tfs[l.preset]; if (t) editor.load(t); }
+        const path = layerHistogramPath(id, l.name, null);
+        if (l.name !== "t1" && path && !(l.name in layerHist)) {
+          layerHist[l.name] = null;
+          apiJson<VolumeHistogram>("GET", path).then((r) => { layerHist[l.name] = r; showBrain(); }, () => undefined);
+        }
         showBrain();
       }, (final) => (final ? sched.now({ ...v }) : sched.interactive({ ...v })));
       tabsBox.replaceChildren(h("h2", {}, "Modalities"), tabs.el);

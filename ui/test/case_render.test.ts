@@ -53,3 +53,13 @@ describe("case renders", () => {
     expect(histogramPath(4, 7, 64)).toBe("/api/cases/4/volumes/7/histogram?bins=64");
   });
 });
+
+describe("layer histograms", () => {
+  it("asks the stored T1's histogram or the plan's CT / fMRI one", async () => {
+    const { layerHistogramPath } = await import("../src/case_render");
+    expect(layerHistogramPath(4, "t1", 7, 64)).toBe("/api/cases/4/volumes/7/histogram?bins=64");
+    expect(layerHistogramPath(4, "t1", null)).toBeNull();
+    expect(layerHistogramPath(4, "ct", null, 32)).toBe("/api/cases/4/plan/ct/histogram?bins=32");
+    expect(layerHistogramPath(4, "fmri", 7)).toBe("/api/cases/4/plan/fmri/histogram?bins=128");
+  });
+});
