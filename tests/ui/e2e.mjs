@@ -7,7 +7,7 @@ import fs from "node:fs";
 import os from "node:os";
 import path from "node:path";
 import { trackerE2E } from "./e2e_tracker.mjs";
-import { liveViewE2E, planCheckE2E, tagsE2E } from "./e2e_live_tags.mjs";
+import { liveViewE2E, planCheckE2E, tagsE2E, trackerPlaceE2E } from "./e2e_live_tags.mjs";
 
 const [daemonBin, uiDir, artDir] = process.argv.slice(2).map((p) => path.resolve(p));
 const CHROMIUM = process.env.CF_CHROMIUM ?? "/usr/bin/chromium";
@@ -132,6 +132,7 @@ try {
 
   // The Tracker screen: patient registration with the simulated pointer (e2e_tracker.mjs).
   const trackerCaseId = await trackerE2E({ page, base, step, expect, shot, checkTargets });
+  await trackerPlaceE2E({ page, base, step, expect, shot });
   await page.goto(`${base}/#/case/${createdId}`);
   await page.waitForFunction(() => document.querySelector('[data-testid="render-image"]')?.dataset.full === "true", null, { timeout: 30000 });
 

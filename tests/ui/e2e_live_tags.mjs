@@ -27,19 +27,30 @@ export async function liveViewE2E({ page, base, step, expect, shot, checkTargets
   await checkTargets("photo-live");
   const cb = await page.getByTestId("live-capture").boundingBox();
   expect(cb.height >= 79, `Capture is a big button (${cb.width.toFixed(0)}x${cb.height.toFixed(0)} px)`);
+  const oldPhoto = await page.evaluate(() => document.querySelector('[data-testid="photo-image"]')?.getAttribute("src") ?? "");
   await page.getByTestId("live-capture").tap();
-  await page.waitForFunction(async ([id, n]) => (await (await fetch(`/api/cases/${id}`)).json()).photos.length === n + 1, [caseId, before], { timeout: 60000, polling: 500 });
+  // Polled here (a waitForFunction predicate that returns a promise counts as true at once).
+  const until = async (what, cond, ms) => {
+    const t = Date.now();
+    while (!(await cond())) {
+      if (Date.now() - t > ms) throw new Error(`${what}: not within ${ms / 1000} s`);
+      await page.waitForTimeout(200);
+    }
+    return (Date.now() - t) / 1000;
+  };
+  await until("the captured photo stored", async () => (await api("GET", `/api/cases/${caseId}`)).j.photos.length === before + 1, 60000);
   step(`Capture stored photo ${before + 1} of the case`);
   // Live again on the reloaded screen, then leave it: the polling stops and the daemon stops the
   // stream 2 s after the last request.
-  await page.getByTestId("photo-image").waitFor({ timeout: 30000 });
+  // The screen reloads with the new photo (a new picture, not the one shown before the capture).
+  await page.waitForFunction((old) => { const i = document.querySelector('[data-testid="photo-image"]'); return !!i && i.getAttribute("src") !== old; }, oldPhoto, { timeout: 30000 });
   await page.getByTestId("live-toggle").tap();
   await page.waitForFunction(() => Number(document.querySelector('[data-testid="live-frame"]')?.dataset.seq) >= 1, null, { timeout: 30000 });
+  const s2 = Number(await page.getByTestId("live-frame").getAttribute("data-seq"));
+  await page.waitForFunction((s) => Number(document.querySelector('[data-testid="live-frame"]')?.dataset.seq) > s, s2, { timeout: 30000 }); // a frame of the new stream
   expect((await api("GET", "/api/camera")).j.live === true, "live again after the capture");
   await page.evaluate((id) => { location.hash = `#/case/${id}/contents`; }, caseId);
-  const t0 = Date.now();
-  await page.waitForFunction(async () => (await (await fetch("/api/camera")).json()).live === false, null, { timeout: 10000, polling: 200 });
-  const stoppedS = (Date.now() - t0) / 1000;
+  const stoppedS = await until("the stream stopped after the screen was left", async () => (await api("GET", "/api/camera")).j.live === false, 10000);
   expect(stoppedS > 1, `the stream ran on until the idle time (${stoppedS.toFixed(1)} s), so it was live when the screen was left`);
   step(`live view stopped ${stoppedS.toFixed(1)} s after the Photo screen was left`);
 }
@@ -95,4 +106,31 @@ export async function planCheckE2E({ page, step, expect, shot, checkTargets, cas
   step(`Preoperative: ${await page.getByTestId("plan-check-text").textContent()}`);
   await shot("plan-01-check");
   await checkTargets("preoperative");
+}
+
+/** An image fiducial placed by a tap on the Tracker screen's slices (a case of its own): the
+ *  new fiducial lands at the point the tapped slice shows (within a slice pixel). */
+export async function trackerPlaceE2E({ page, base, step, expect, shot }) {
+  const api = apiOf(page);
+  const c = await api("POST", "/api/cases", { title: "E2E tracker fiducial by touch" });
+  expect(c.status === 201, `case created (${c.status})`);
+  await page.goto(`${base}/#/case/${c.j.id}/tracker`);
+  await page.getByTestId("suggest-btn").tap();
+  await page.locator('[data-testid^="fid-row-"]').nth(5).waitFor({ timeout: 15000 });
+  await page.waitForFunction(() => !!document.querySelector('[data-testid="tracker-slices"]')?.dataset.point &&
+                                   document.querySelector('[data-testid="tracker-slices"]').naturalWidth > 0, null, { timeout: 15000 });
+  const centre = (await page.getByTestId("tracker-slices").getAttribute("data-point")).split(",").map(Number);
+  await page.getByTestId("place-fid-btn").tap();
+  // A tap on the coronal panel, 30 slice pixels right of and 20 above its centre: +x and +z.
+  const b = await page.getByTestId("tracker-slices").boundingBox();
+  const k = b.width / 720; // 3 panels of 240 px
+  await page.touchscreen.tap(b.x + (240 + 120 + 30) * k, b.y + (120 - 20) * k);
+  await page.getByTestId("fid-row-F1").waitFor({ timeout: 15000 });
+  const nav = (await api("GET", `/api/cases/${c.j.id}/navigation`)).j;
+  const f = nav.image_fiducials.fiducials.find((x) => x.label === "F1");
+  const want = [centre[0] + 30 * 220 / 240, centre[1], centre[2] + 20 * 220 / 240];
+  const err = Math.hypot(...f.p_image_mm.map((v, i) => v - want[i]));
+  expect(err < 2, `F1 at (${f.p_image_mm.map((v) => v.toFixed(1)).join(", ")}) mm, expected (${want.map((v) => v.toFixed(1)).join(", ")}) (${err.toFixed(2)} mm off)`);
+  step(`fiducial F1 placed by a tap on the coronal slice, ${err.toFixed(2)} mm from the tapped point`);
+  await shot("tracker-04-fiducial-by-touch");
 }
