@@ -77,8 +77,9 @@ export function mountLiveView(caseId: number, stage: HTMLElement, panel: HTMLEle
   const toggle = h("button", { class: "btn", "data-testid": "live-toggle" }, "Live view");
   const focal = h("input", { type: "number", class: "field narrow", min: 10, max: 100000, step: 1, value: 1400, title: "focal length (px)", "data-testid": "live-focal" });
   const capture = h("button", { class: "btn primary big", "data-testid": "live-capture" }, "Capture");
-  panel.append(h("h2", {}, "Camera"), h("div", { class: "choices" }, toggle), capture,
-    h("div", { class: "toolbar" }, h("label", { class: "muted" }, "focal px"), focal), status);
+  // First in the panel: Capture is in reach without scrolling at 1280x800.
+  panel.prepend(h("div", { class: "live-panel" }, h("h2", {}, "Camera"), h("div", { class: "choices" }, toggle), capture,
+    h("div", { class: "toolbar" }, h("label", { class: "muted" }, "focal px"), focal), status));
   let url = "";
   let frames = 0, t0 = 0;
   const poller = new LivePoller((f) => {
