@@ -66,7 +66,13 @@ RegistrationParams RegistrationParams::defaults() {
     // (two bisection steps and a secant step find the crossing). Evaluation of 2026-11-22 (third
     // session): MRE 1.22 -> 1.30 mm (within the spread of 16 runs), 100 %, with ~740 instead
     // of ~870 evaluations, most of them at small sizes: CPU time 8.2 -> 2.7 s a registration.
+    //
+    // Fourth session: a coarser screen first. Every start gets 30 evaluations at FWHM 8 mm and
+    // 96 px with 3 mm / 3° steps (the seed's multi-scale 8 -> 2 mm begins there); the best 3 go
+    // on at FWHM 4. Wide capture (±20 mm / ±15°) 88 -> 100 %, seed protocol ev8 1.05 -> 1.00 mm,
+    // ev12 0.59 -> 0.59 mm, for 90 more evaluations at the smallest size (docs/registration.md).
     p.search_stages = {
+        {"screen-fwhm8", 8.0, 3.0, 3.0, 96, 30, 0.2, 0.2},
         {"screen-fwhm4", 4.0, 2.0, 2.0, 128, 30, 0.1, 0.1},
         {"search-fwhm4", 4.0, 1.5, 1.5, 190, 60, 0.1, 0.1},
     };
