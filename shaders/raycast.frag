@@ -3,8 +3,8 @@
 // the renderer when it builds the program, 1..4). Per pixel: the ray from the camera through
 // the pixel (undistorted on the CPU into u_rays), samples on the lattice t = n * step (mm from
 // the camera), trilinear interpolation of the quantised volume (0..4095), the transfer
-// function as a 4096-entry table, two bisection steps and a secant step to the first crossing of the reference layer's
-// surface level (depth and shading there), Lambert headlight shading from the central-
+// function as a 4096-entry table, two bisection steps and a secant step to the first crossing
+// of the reference layer's surface level (depth and shading there), Lambert headlight shading from the central-
 // difference gradient, front-to-back compositing, early termination, and empty-space skipping
 // over 8^3 bricks. Image row v is framebuffer row v (no flip; read back row by row).
 // Weighted fusion of several layers: see cortexfuse/core/fusion.hpp.

@@ -22,8 +22,8 @@ constexpr int kLutSize = 4096; // entries of the baked transfer function
 constexpr int kBrickShift = 3;  // log2(kBrick)
 static_assert((1 << kBrickShift) == kBrick);
 
-constexpr int kMaxBrickDistance = 31;
-constexpr int kSurfaceBisections = 2;  // before the secant step to the surface level (raycast.frag too)  // cap of the brick distance map, in bricks
+constexpr int kMaxBrickDistance = 31;   // cap of the brick distance map, in bricks
+constexpr int kSurfaceBisections = 2;  // before the secant step to the surface level (raycast.frag too)
 
 /// Chebyshev (L-infinity) distance in bricks from each brick to the nearest `visible` one,
 /// capped at `cap` (0 = visible). Separable: exact 1D transforms along x, then y, then z, each
@@ -352,8 +352,8 @@ private:
                         // step, and a secant step places it there, where the trilinear field is
                         // close to linear. Without this, depth and shading jump with the camera
                         // in sample-distance steps and the similarity landscape turns jagged.
-                        // (Six bisection steps cost 30 % of a registration's CPU time; a secant
-                        // over the whole step lost ~0.15 mm on the seed protocol.)
+                        // (Six bisection steps made a registration's CPU time ~17 % longer; a
+                        // secant over the whole step lost ~0.1 mm on the seed protocol.)
                         refined = true;
                         float ta = t - step, tb = t, sb = s;
                         float sa = sample_clamped(o.x() + ta * dir_index.x(), o.y() + ta * dir_index.y(), o.z() + ta * dir_index.z());
