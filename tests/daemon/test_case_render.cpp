@@ -295,7 +295,9 @@ TEST(CaseRender, PickLandsOnTheCasesSurface) {
 TEST(CaseRender, KeepsPreparedRenderersPerVolume) {
     wait_for_volume();
     const std::int64_t id = shifted_case();
-    json b = {{"width", 64}, {"height", 48}, {"view", "left"}, {"case_id", id}};
+    // brain_only fixed: a custom transfer function otherwise defaults to the whole volume, a
+    // renderer of its own (the preset's default is the brain only).
+    json b = {{"width", 64}, {"height", 48}, {"view", "left"}, {"case_id", id}, {"brain_only", true}};
     ASSERT_EQ(post("/api/render", b).status, 200);
     const auto prep0 = get("/api/status").j["modules"]["renderer"]["case_preparations"].get<std::uint64_t>();
     for (const char* v : {"right", "superior", "left"}) {
