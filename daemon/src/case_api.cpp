@@ -5,8 +5,10 @@
 #include <algorithm>
 #include <atomic>
 #include <fstream>
+#include <optional>
 #include <regex>
 #include <sstream>
+#include <thread>
 
 #include "cortexfuse/daemon/log.hpp"
 
@@ -40,6 +42,23 @@ Response ok(json j, int status) {
     r.status = status;
     r.json = std::move(j);
     return r;
+}
+
+Handler on_own_stack(Handler h) {
+    return [h = std::move(h)](const Request& r) {
+        std::optional<Response> out;
+        std::exception_ptr err;
+        std::thread t([&] {
+            try {
+                out = h(r);
+            } catch (...) {
+                err = std::current_exception();
+            }
+        });
+        t.join();
+        if (err) std::rethrow_exception(err);
+        return std::move(*out);
+    };
 }
 
 fs::path case_dir_from_name(const fs::path& cases_root, const json& v, const std::string& field) {

@@ -25,6 +25,10 @@ Response guarded(F&& f) {
         rethrow_store_error(e);
     }
 }
+/// `h` run on a thread of its own with the default stack, the caller waiting: civetweb's
+/// connection threads have small stacks (Debian builds it with a fixed stack size), and ITK's
+/// readers, libzip, mesh reading and the exports go deeper than that (under ASan by far).
+Handler on_own_stack(Handler h);
 /// A case folder named relative to `cases_root` ("phantom/case_0000"): parts of
 /// [A-Za-z0-9_.-], no '..', must hold a case.json. ApiError 400 / 404 naming `field`.
 std::filesystem::path case_dir_from_name(const std::filesystem::path& cases_root, const nlohmann::json& v, const std::string& field);

@@ -27,27 +27,6 @@ using namespace cf::db;
 
 namespace {
 
-
-/// civetweb's connection threads have small stacks (Debian builds it with a fixed stack size);
-/// ITK's readers, libzip and the exports go deeper than that (under ASan by far). The heavy
-/// handlers run on a thread of their own with the default stack, the caller waiting.
-Handler on_own_stack(Handler h) {
-    return [h = std::move(h)](const Request& r) {
-        std::optional<Response> out;
-        std::exception_ptr err;
-        std::thread t([&] {
-            try {
-                out = h(r);
-            } catch (...) {
-                err = std::current_exception();
-            }
-        });
-        t.join();
-        if (err) std::rethrow_exception(err);
-        return std::move(*out);
-    };
-}
-
 /// A raw-body upload endpoint: the body up to `max_upload_bytes` (store.max_upload_bytes), the
 /// handler on a full stack (it reads the file with ITK, OpenCV or libzip before storing it).
 void add_upload(EndpointRegistry& reg, Endpoint e, std::int64_t max_upload_bytes) {

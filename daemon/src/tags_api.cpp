@@ -188,25 +188,6 @@ json revision_json(CaseStore& st, const ResultRecord& r) {
     return j;
 }
 
-/// civetweb's connection threads have small stacks; reading the mesh and casting run on a
-/// thread of their own with the default stack (as case_data_api.cpp does for its uploads).
-Handler on_own_stack(Handler h) {
-    return [h = std::move(h)](const Request& r) {
-        std::optional<Response> out;
-        std::exception_ptr err;
-        std::thread t([&] {
-            try {
-                out = h(r);
-            } catch (...) {
-                err = std::current_exception();
-            }
-        });
-        t.join();
-        if (err) std::rethrow_exception(err);
-        return std::move(*out);
-    };
-}
-
 }  // namespace
 
 void register_tags_endpoints(EndpointRegistry& reg, CaseStore& store, const fs::path& work_dir) {
