@@ -10,6 +10,8 @@
 #include <sstream>
 #include <thread>
 
+#include "cortexfuse/core/case.hpp"
+#include "cortexfuse/core/error.hpp"
 #include "cortexfuse/daemon/log.hpp"
 
 namespace cf::daemon {
@@ -42,6 +44,46 @@ Response ok(json j, int status) {
     r.status = status;
     r.json = std::move(j);
     return r;
+}
+
+RegisteredView registered_view(const cf::db::CaseRecord& rec, std::optional<std::int64_t> registration_id, const std::string& c,
+                               const std::string& register_hint, const std::string& surface_hint) {
+    using cf::db::RegistrationStatus;
+    RegisteredView f;
+    bool found = false;
+    for (const auto& r : rec.registrations) {
+        if (registration_id ? r.id != *registration_id : (r.status != RegistrationStatus::succeeded || !r.final_pose)) continue;
+        f.reg = r;
+        found = true;  // oldest first: the last match is the newest
+    }
+    if (!found) {
+        if (registration_id) throw ApiError(404, "not_found", c + " registration_id: case has no registration " + std::to_string(*registration_id));
+        throw ApiError(409, "conflict", c + ": no successful registration yet (" + register_hint + ")");
+    }
+    if (f.reg.status != RegistrationStatus::succeeded || !f.reg.final_pose)
+        throw ApiError(409, "conflict", c + " registration " + std::to_string(f.reg.id) + ": it did not succeed (" + to_string(f.reg.status) + ")");
+    try {
+        // Stored as {"T_camera_from_world": 4x4} (the register job) or as the 4x4 itself.
+        const json& fp = *f.reg.final_pose;
+        f.T_camera_from_world = parse_pose(fp.is_array() ? json{{"T_camera_from_world", fp}} : fp, c + " registration pose");
+    } catch (const InputError& e) {
+        throw ApiError(500, "internal", e.what());
+    }
+    bool photo = false;
+    for (const auto& p : rec.photos)
+        if (f.reg.photo_id ? p.id == *f.reg.photo_id : (!photo || p.id > f.photo.id)) {
+            f.photo = p;
+            photo = true;
+        }
+    if (!photo) throw ApiError(409, "conflict", c + ": the registration's photo is not in the case");
+    bool surface = false;
+    for (const auto& r : rec.results)
+        if (r.kind == "plan_brain_surface" && (!surface || r.id > f.surface.id)) {
+            f.surface = r;
+            surface = true;
+        }
+    if (!surface) throw ApiError(409, "conflict", c + ": no brain surface yet (" + surface_hint + ")");
+    return f;
 }
 
 Handler on_own_stack(Handler h) {

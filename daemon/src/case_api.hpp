@@ -5,7 +5,10 @@
 // Thread contract: the handlers run on any connection thread; CaseStore serialises its own
 // calls (one SQLite connection behind a mutex).
 #include <filesystem>
+#include <optional>
+#include <string>
 
+#include "cortexfuse/core/pose.hpp"
 #include "cortexfuse/daemon/endpoints.hpp"
 #include "cortexfuse/db/case_store.hpp"
 
@@ -29,6 +32,19 @@ Response guarded(F&& f) {
 /// connection threads have small stacks (Debian builds it with a fixed stack size), and ITK's
 /// readers, libzip, mesh reading and the exports go deeper than that (under ASan by far).
 Handler on_own_stack(Handler h);
+/// What a view of a registered case is made of: a succeeded registration (`registration_id`,
+/// or the newest one with a pose), its pose, its photo and the plan's newest brain surface.
+/// ApiError naming `ctx`: 404 for an unknown registration_id; 409 for no registration, a
+/// failed one, its photo missing, or no surface (the hints in parentheses say what to run);
+/// 500 for a stored pose that does not parse.
+struct RegisteredView {
+    cf::db::RegistrationRecord reg;
+    cf::db::PhotoRecord photo;
+    Pose T_camera_from_world;
+    cf::db::ResultRecord surface;
+};
+RegisteredView registered_view(const cf::db::CaseRecord& rec, std::optional<std::int64_t> registration_id, const std::string& ctx,
+                               const std::string& register_hint, const std::string& surface_hint);
 /// A case folder named relative to `cases_root` ("phantom/case_0000"): parts of
 /// [A-Za-z0-9_.-], no '..', must hold a case.json. ApiError 400 / 404 naming `field`.
 std::filesystem::path case_dir_from_name(const std::filesystem::path& cases_root, const nlohmann::json& v, const std::string& field);

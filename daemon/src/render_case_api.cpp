@@ -35,48 +35,20 @@ FusedParts fused_parts(CaseStore& st, std::int64_t case_id, std::optional<std::i
     const CaseRecord rec = st.get_case(case_id);
     const std::string c = "fused case " + std::to_string(case_id);
     FusedParts f;
-    bool found = false;
-    for (const auto& r : rec.registrations) {
-        if (registration_id ? r.id != *registration_id : (r.status != RegistrationStatus::succeeded || !r.final_pose)) continue;
-        f.reg = r;
-        found = true;  // oldest first: the last match is the newest
-    }
-    if (!found) {
-        if (registration_id)
-            throw ApiError(404, "not_found", c + " registration_id: case has no registration " + std::to_string(*registration_id));
-        throw ApiError(409, "conflict", c + ": no successful registration yet (run a register job first)");
-    }
-    if (f.reg.status != RegistrationStatus::succeeded || !f.reg.final_pose)
-        throw ApiError(409, "conflict", c + " registration " + std::to_string(f.reg.id) + ": it did not succeed (" + to_string(f.reg.status) + ")");
-    try {
-        // Stored as {"T_camera_from_world": 4x4} (the register job) or as the 4x4 itself.
-        const json& fp = *f.reg.final_pose;
-        f.T = parse_pose(fp.is_array() ? json{{"T_camera_from_world", fp}} : fp, c + " registration pose");
-    } catch (const InputError& e) {
-        throw ApiError(500, "internal", e.what());
-    }
-    bool photo = false;
-    for (const auto& p : rec.photos)
-        if (f.reg.photo_id ? p.id == *f.reg.photo_id : (!photo || p.id > f.photo.id)) {
-            f.photo = p;
-            photo = true;
-        }
-    if (!photo) throw ApiError(409, "conflict", c + ": the registration's photo is not in the case");
+    const RegisteredView v = registered_view(rec, registration_id, c, "run a register job first", "run a plan job first");
+    f.reg = v.reg;
+    f.photo = v.photo;
+    f.T = v.T_camera_from_world;
+    f.surface = v.surface;
     if (f.reg.roi_id) {
         for (const auto& r : st.roi_history(case_id))
             if (r.id == *f.reg.roi_id) f.roi = r;
     } else {
         f.roi = rec.roi;
     }
-    bool surface = false, t1 = false;
-    for (const auto& r : rec.results) {
-        if (r.kind == "plan_brain_surface" && (!surface || r.id > f.surface.id)) {
-            f.surface = r;
-            surface = true;
-        }
+    bool t1 = false;
+    for (const auto& r : rec.results)
         if (r.kind == "plan_brain_mask" && (!f.plan_mask || r.id > f.plan_mask->id)) f.plan_mask = r;
-    }
-    if (!surface) throw ApiError(409, "conflict", c + ": no brain surface yet (run a plan job first)");
     for (const auto& v : rec.volumes) {
         if (v.modality == Modality::T1 && (f.reg.volume_id ? v.id == *f.reg.volume_id : (!t1 || v.id > f.t1.id))) {
             f.t1 = v;

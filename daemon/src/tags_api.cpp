@@ -96,43 +96,17 @@ struct TagParts {
 
 TagParts tag_parts(const CaseRecord& rec, std::optional<std::int64_t> registration_id, const std::string& c) {
     TagParts f;
-    bool found = false;
-    for (const auto& r : rec.registrations) {
-        if (registration_id ? r.id != *registration_id : (r.status != RegistrationStatus::succeeded || !r.final_pose)) continue;
-        f.reg = r;
-        found = true;  // oldest first: the last match is the newest
-    }
-    if (!found) {
-        if (registration_id) throw ApiError(404, "not_found", c + " registration_id: case has no registration " + std::to_string(*registration_id));
-        throw ApiError(409, "conflict", c + ": no successful registration yet (tags are cast with its pose; run a register job first)");
-    }
-    if (f.reg.status != RegistrationStatus::succeeded || !f.reg.final_pose)
-        throw ApiError(409, "conflict", c + " registration " + std::to_string(f.reg.id) + ": it did not succeed (" + to_string(f.reg.status) + ")");
-    try {
-        const json& fp = *f.reg.final_pose;
-        f.T_camera_from_world = parse_pose(fp.is_array() ? json{{"T_camera_from_world", fp}} : fp, c + " registration pose");
-    } catch (const InputError& e) {
-        throw ApiError(500, "internal", e.what());
-    }
-    bool photo = false;
-    for (const auto& p : rec.photos)
-        if (f.reg.photo_id ? p.id == *f.reg.photo_id : (!photo || p.id > f.photo.id)) {
-            f.photo = p;
-            photo = true;
-        }
-    if (!photo) throw ApiError(409, "conflict", c + ": the registration's photo is not in the case");
+    const RegisteredView v = registered_view(rec, registration_id, c, "tags are cast with its pose; run a register job first",
+                                             "tags land on the plan's surface; run a plan job first");
+    f.reg = v.reg;
+    f.photo = v.photo;
+    f.T_camera_from_world = v.T_camera_from_world;
+    f.surface = v.surface;
     try {
         f.K = parse_camera(json{{"camera", f.photo.intrinsics}}, c + " photo " + std::to_string(f.photo.id));
     } catch (const InputError& e) {
         throw ApiError(500, "internal", e.what());
     }
-    bool surface = false;
-    for (const auto& r : rec.results)
-        if (r.kind == "plan_brain_surface" && (!surface || r.id > f.surface.id)) {
-            f.surface = r;
-            surface = true;
-        }
-    if (!surface) throw ApiError(409, "conflict", c + ": no brain surface yet (tags land on the plan's surface; run a plan job first)");
     return f;
 }
 
