@@ -34,6 +34,8 @@ namespace {
 constexpr const char* kImageKind = "nav_image_fiducials";
 constexpr const char* kPatientKind = "nav_patient_fiducials";
 constexpr const char* kRegistrationKind = "patient_registration";
+constexpr const char* kLandmarkKind = "nav_cortical_landmarks";
+constexpr std::size_t kMaxLandmarks = 256;  // over every set of a case
 constexpr std::size_t kMaxFiducials = 64;
 constexpr int kMinFrames = 4;  // frames a recording averages at least (0.3 s at 20 Hz gives 6)
 
@@ -116,7 +118,8 @@ Stored newest(CaseStore& store, const CaseRecord& rec, const char* kind) {
     s.revision = last->id;
     s.created_utc = format_utc(last->created_utc);
     s.content = json::parse(store.read_blob(last->blob.sha256), nullptr, false);  // verified against its hash
-    if (s.content.is_discarded() || !s.content.is_object() || (!s.content.contains("fiducials") && std::string(kind) != kRegistrationKind))
+    const char* list_key = std::string(kind) == kLandmarkKind ? "landmarks" : "fiducials";
+    if (s.content.is_discarded() || !s.content.is_object() || (!s.content.contains(list_key) && std::string(kind) != kRegistrationKind))
         throw ApiError(500, "corrupt", std::string(kind) + " result " + std::to_string(last->id) + ": not the JSON this daemon wrote");
     return s;
 }
@@ -531,6 +534,75 @@ Eigen::Matrix4d mat4(const json& v, const std::string& what) {
     return T;
 }
 
+
+// ------------------------------------------------------------------------ cortical landmarks
+
+/// The landmark list of a stored revision ([] when none).
+json landmark_list(const Stored& s) { return s.revision ? s.content.at("landmarks") : json::array(); }
+
+/// The sets in the order they were first recorded, with their counts.
+json landmark_sets(const json& list) {
+    std::vector<std::string> order;
+    std::map<std::string, int> count;
+    for (const auto& l : list) {
+        const std::string set = l.at("set").get<std::string>();
+        if (!count.count(set)) order.push_back(set);
+        ++count[set];
+    }
+    json out = json::array();
+    for (const auto& s : order) out.push_back({{"set", s}, {"count", count[s]}});
+    return out;
+}
+std::string set_names(const json& list) {
+    std::string names;
+    for (const auto& s : landmark_sets(list)) names += (names.empty() ? "" : ", ") + s["set"].get<std::string>();
+    return names.empty() ? "none recorded" : names;
+}
+
+/// The landmarks of one set as core's digitised points (image space).
+std::vector<cf::DigitisedPoint> landmarks_of(const json& list, const std::string& set, std::set<std::int64_t>& registrations) {
+    std::vector<cf::DigitisedPoint> out;
+    for (const auto& l : list) {
+        if (l.at("set") != set) continue;
+        cf::DigitisedPoint d;
+        d.label = l.at("label").get<std::string>();
+        d.p_patient_mm = vec3(l.at("p_reference_mm"), "stored landmark");
+        d.p_image_mm = vec3(l.at("p_image_mm"), "stored landmark");
+        d.spread_mm = l.value("spread_mm", 0.0);
+        d.frames = l.value("frames", 0);
+        registrations.insert(l.value("registration_revision", std::int64_t{0}));
+        out.push_back(d);
+    }
+    return out;
+}
+
+json report_json(const cf::BrainShiftReport& rep, const std::vector<cf::DigitisedPoint>& earlier, const std::vector<cf::DigitisedPoint>& later) {
+    auto find = [](const std::vector<cf::DigitisedPoint>& v, const std::string& label) -> const cf::DigitisedPoint* {
+        for (const auto& d : v)
+            if (d.label == label) return &d;
+        return nullptr;
+    };
+    json rows = json::array();
+    for (const auto& row : rep.rows)
+        rows.push_back({{"label", row.label},
+                        {"earlier_image_mm", vec_json(find(earlier, row.label)->p_image_mm)},
+                        {"later_image_mm", vec_json(find(later, row.label)->p_image_mm)},
+                        {"d_mm", vec_json(row.d_mm)},
+                        {"magnitude_mm", row.magnitude_mm}});
+    return {{"rows", rows},
+            {"n", rep.rows.size()},
+            {"mean_d_mm", vec_json(rep.mean_d_mm)},
+            {"sd_d_mm", vec_json(rep.sd_d_mm)},
+            {"mean_abs_d_mm", vec_json(rep.mean_abs_d_mm)},
+            {"mean_magnitude_mm", rep.mean_magnitude_mm},
+            {"sd_magnitude_mm", rep.sd_magnitude_mm},
+            {"max_magnitude_mm", rep.max_magnitude_mm},
+            {"missing_later", rep.missing_later},
+            {"missing_earlier", rep.missing_earlier},
+            {"axes", "image LPS mm (x left, y posterior, z superior); d = later - earlier"},
+            {"table", cf::format_brain_shift_table(rep)}};
+}
+
 }  // namespace
 
 void register_navigation_endpoints(EndpointRegistry& reg, CaseStore& store, TrackerModule& tracker, const NavigationOptions& options) {
@@ -880,6 +952,168 @@ void register_navigation_endpoints(EndpointRegistry& reg, CaseStore& store, Trac
                      c["accepted_utc"] = format_utc(x.created_utc);
                      c["state"] = to_string(st->get_case(id).summary.state);
                      return ok(c, 201);
+                 });
+             }});
+
+    // ---- cortical landmarks and brain shift (docs/api/navigation.md "Cortical landmarks") ----
+    reg.add({"GET", "/api/cases/{id}/navigation/landmarks", "navigation.landmarks", Access::read,
+             "The cortical landmarks digitised with the pointer, every set, and the accepted registration they map through",
+             [st](const Request& r) {
+                 const auto id = case_id_param(r);
+                 return guarded([&] {
+                     const CaseRecord rec = st->get_case(id);
+                     const Stored lm = newest(*st, rec, kLandmarkKind), acc = newest(*st, rec, kRegistrationKind);
+                     const json list = landmark_list(lm);
+                     return ok({{"case_id", id}, {"revision", lm.revision}, {"registration_revision", acc.revision},
+                                {"sets", landmark_sets(list)}, {"landmarks", list}});
+                 });
+             }});
+    reg.add({"POST", "/api/cases/{id}/navigation/landmarks/record", "navigation.record_landmark", Access::write,
+             "Digitise a cortical landmark with the pointer (averaged over window_s, mapped into the image by the accepted registration): {label, set?: \"initial\", window_s?, max_spread_mm?, pointer?, reference?}",
+             [st, tr, tip_in_use = tip_state, list_mu](const Request& r) {
+                 const Eigen::Vector3d tip = tip_in_use->get();
+                 const auto id = case_id_param(r);
+                 const json b = body_object(r, "landmark", {"label", "set", "window_s", "max_spread_mm", "pointer", "reference"});
+                 const std::string label = label_of(b.value("label", json()), "landmark label");
+                 const std::string set = b.contains("set") && !b["set"].is_null() ? label_of(b["set"], "landmark set") : std::string("initial");
+                 const double window_s = number(b, "window_s", 0.3, 0.1, 2.0, "landmark");
+                 const double max_spread = number(b, "max_spread_mm", 0.5, 0.05, 5.0, "landmark");
+                 const std::string pointer = text(b, "pointer", "pointer", "landmark"), reference = text(b, "reference", "reference", "landmark");
+                 return guarded([&] {
+                     std::lock_guard lk(*list_mu);
+                     const CaseRecord rec = st->get_case(id);
+                     const Stored acc = newest(*st, rec, kRegistrationKind);
+                     if (!acc.revision)
+                         throw conflict("landmark", "case " + std::to_string(id) +
+                                                        " has no accepted patient registration: touch the fiducials and accept the registration first "
+                                                        "(the pointer cannot be mapped into the image without it)");
+                     const Eigen::Matrix4d T = mat4(acc.content.at("T_image_from_reference"), "stored patient registration");
+                     const Stored lm = newest(*st, rec, kLandmarkKind);
+                     json list = json::array();
+                     for (const auto& l : landmark_list(lm))
+                         if (!(l.at("label") == label && l.at("set") == set)) list.push_back(l);
+                     if (list.size() >= kMaxLandmarks)
+                         throw conflict("landmark", "case " + std::to_string(id) + " holds " + std::to_string(list.size()) + " landmarks (at most " +
+                                                        std::to_string(kMaxLandmarks) + "): delete some first");
+                     const cf::DigitisedPoint d = digitise(*tr, label, pointer, reference, window_s, max_spread, tip);
+                     const Eigen::Vector3d p_image = (T * d.p_patient_mm.homogeneous()).head<3>();
+                     const json entry{{"label", label}, {"set", set}, {"p_reference_mm", vec_json(d.p_patient_mm)}, {"p_image_mm", vec_json(p_image)},
+                                      {"spread_mm", d.spread_mm}, {"frames", d.frames}, {"window_s", window_s},
+                                      {"registration_revision", acc.revision}, {"recorded_utc", format_utc(system_now_utc())}};
+                     list.push_back(entry);
+                     const ResultRecord x = store_json(*st, id, kLandmarkKind, "cortical_landmarks.json", {{"landmarks", list}},
+                                                       {{"recorded", label}, {"set", set}, {"count", list.size()}}, actor_of(r.client));
+                     return ok({{"revision", x.id}, {"recorded", entry}, {"sets", landmark_sets(list)}, {"landmarks", list}}, 201);
+                 });
+             }});
+    reg.add({"POST", "/api/cases/{id}/navigation/landmarks/rename", "navigation.rename_landmark", Access::write,
+             "Rename a landmark (a new revision): {label, new_label, set?}; without set, in every set",
+             [st, list_mu](const Request& r) {
+                 const auto id = case_id_param(r);
+                 const json b = body_object(r, "rename landmark", {"label", "new_label", "set"});
+                 const std::string label = label_of(b.value("label", json()), "rename landmark label");
+                 const std::string to = label_of(b.value("new_label", json()), "rename landmark new_label");
+                 const std::optional<std::string> set =
+                     b.contains("set") && !b["set"].is_null() ? std::optional<std::string>(label_of(b["set"], "rename landmark set")) : std::nullopt;
+                 if (to == label) throw bad("rename landmark new_label", "'" + to + "' is the label it has");
+                 return guarded([&] {
+                     std::lock_guard lk(*list_mu);
+                     const CaseRecord rec = st->get_case(id);
+                     const Stored lm = newest(*st, rec, kLandmarkKind);
+                     json list = landmark_list(lm);
+                     std::set<std::string> renamed_in;
+                     for (const auto& l : list)
+                         if (l.at("label") == label && (!set || l.at("set") == *set)) renamed_in.insert(l.at("set").get<std::string>());
+                     if (renamed_in.empty())
+                         throw ApiError(404, "not_found", "landmark '" + label + "'" + (set ? " in set '" + *set + "'" : std::string()) +
+                                                              ": not recorded in case " + std::to_string(id));
+                     for (const auto& l : list)
+                         if (l.at("label") == to && renamed_in.count(l.at("set").get<std::string>()))
+                             throw conflict("rename landmark new_label", "'" + to + "' is already a landmark of set '" + l.at("set").get<std::string>() + "'");
+                     for (auto& l : list)
+                         if (l.at("label") == label && renamed_in.count(l.at("set").get<std::string>())) l["label"] = to;
+                     const ResultRecord x = store_json(*st, id, kLandmarkKind, "cortical_landmarks.json", {{"landmarks", list}},
+                                                       {{"renamed", label}, {"to", to}, {"count", list.size()}}, actor_of(r.client));
+                     return ok({{"revision", x.id}, {"sets", landmark_sets(list)}, {"landmarks", list}});
+                 });
+             }});
+    reg.add({"POST", "/api/cases/{id}/navigation/landmarks/delete", "navigation.delete_landmark", Access::write,
+             "Delete a landmark of a set, or with no label the whole set (a new revision without it): {set, label?}",
+             [st, list_mu](const Request& r) {
+                 const auto id = case_id_param(r);
+                 const json b = body_object(r, "delete landmark", {"set", "label"});
+                 const std::string set = label_of(b.value("set", json()), "delete landmark set");
+                 const std::optional<std::string> label =
+                     b.contains("label") && !b["label"].is_null() ? std::optional<std::string>(label_of(b["label"], "delete landmark label")) : std::nullopt;
+                 return guarded([&] {
+                     std::lock_guard lk(*list_mu);
+                     const CaseRecord rec = st->get_case(id);
+                     const Stored lm = newest(*st, rec, kLandmarkKind);
+                     json list = json::array();
+                     std::size_t gone = 0;
+                     for (const auto& l : landmark_list(lm)) {
+                         if (l.at("set") == set && (!label || l.at("label") == *label)) ++gone;
+                         else list.push_back(l);
+                     }
+                     if (!gone)
+                         throw ApiError(404, "not_found", (label ? "landmark '" + *label + "' in set '" + set + "'" : "landmark set '" + set + "'") +
+                                                              ": not recorded in case " + std::to_string(id) + " (sets: " + set_names(landmark_list(lm)) + ")");
+                     const ResultRecord x = store_json(*st, id, kLandmarkKind, "cortical_landmarks.json", {{"landmarks", list}},
+                                                       {{"deleted", label ? json(*label) : json("all")}, {"set", set}, {"count", list.size()}},
+                                                       actor_of(r.client));
+                     return ok({{"revision", x.id}, {"deleted", gone}, {"sets", landmark_sets(list)}, {"landmarks", list}});
+                 });
+             }});
+    reg.add({"POST", "/api/cases/{id}/navigation/brain-shift", "navigation.brain_shift", Access::read,
+             "Brain shift between two sets of landmarks (core's brain_shift; nothing stored): {earlier?: \"initial\", later?: \"later\", labels?: [..]}",
+             [st](const Request& r) {
+                 const auto id = case_id_param(r);
+                 const json b = body_object(r, "brain shift", {"earlier", "later", "labels"});
+                 const std::string earlier = b.contains("earlier") && !b["earlier"].is_null() ? label_of(b["earlier"], "brain shift earlier") : "initial";
+                 const std::string later = b.contains("later") && !b["later"].is_null() ? label_of(b["later"], "brain shift later") : "later";
+                 if (earlier == later) throw bad("brain shift later", "'" + later + "' is the earlier set too: give two different sets");
+                 std::optional<std::set<std::string>> only;
+                 if (b.contains("labels") && !b["labels"].is_null()) {
+                     if (!b["labels"].is_array() || b["labels"].empty()) throw bad("brain shift labels", "must be a non-empty list of landmark labels");
+                     only.emplace();
+                     for (std::size_t i = 0; i < b["labels"].size(); ++i) only->insert(label_of(b["labels"][i], "brain shift labels[" + std::to_string(i) + "]"));
+                 }
+                 return guarded([&] {
+                     const CaseRecord rec = st->get_case(id);
+                     const json list = landmark_list(newest(*st, rec, kLandmarkKind));
+                     std::set<std::int64_t> reg_e, reg_l;
+                     auto e = landmarks_of(list, earlier, reg_e), l = landmarks_of(list, later, reg_l);
+                     for (const auto& [name, v] : {std::pair{&earlier, &e}, std::pair{&later, &l}})
+                         if (v->empty())
+                             throw conflict("brain shift set '" + *name + "'", "no landmarks recorded in it in case " + std::to_string(id) +
+                                                                                 " (sets: " + set_names(list) + ")");
+                     if (only) {
+                         for (const auto& want : *only) {
+                             const auto has = [&](const std::vector<cf::DigitisedPoint>& v) {
+                                 return std::any_of(v.begin(), v.end(), [&](const cf::DigitisedPoint& d) { return d.label == want; });
+                             };
+                             if (!has(e) && !has(l))
+                                 throw bad("brain shift labels", "'" + want + "' is a landmark of neither '" + earlier + "' nor '" + later + "'");
+                         }
+                         const auto keep = [&](std::vector<cf::DigitisedPoint>& v) {
+                             v.erase(std::remove_if(v.begin(), v.end(), [&](const cf::DigitisedPoint& d) { return !only->count(d.label); }), v.end());
+                         };
+                         keep(e);
+                         keep(l);
+                     }
+                     cf::BrainShiftReport rep;
+                     try {
+                         rep = cf::brain_shift(e, l);
+                     } catch (const cf::InputError& err) {
+                         throw conflict("brain shift", err.what());
+                     }
+                     json out = report_json(rep, e, l);
+                     out["case_id"] = id;
+                     out["earlier"] = earlier;
+                     out["later"] = later;
+                     out["registration_revisions"] = {{"earlier", json(reg_e)}, {"later", json(reg_l)}};
+                     out["same_registration"] = reg_e == reg_l && reg_e.size() == 1;
+                     return ok(out);
                  });
              }});
 }

@@ -7,6 +7,7 @@
 // Eigen first: <httplib.h> pulls in <resolv.h>, whose _res macro breaks Eigen's headers.
 #include <Eigen/Geometry>
 
+#include "cortexfuse/core/volume.hpp"
 #include "cortexfuse/daemon/config.hpp"
 #include "cortexfuse/daemon/daemon.hpp"
 
@@ -15,6 +16,7 @@
 #include <unistd.h>
 
 #include <atomic>
+#include <cmath>
 #include <cstdio>
 #include <chrono>
 #include <filesystem>
@@ -468,6 +470,266 @@ TEST(Navigation, TriPlanarSlicesAndSuggestedFiducials) {
     EXPECT_EQ(get("/api/navigation/slices?x=abc").status, 400);
     EXPECT_EQ(get("/api/navigation/slices?size=5").status, 400);
     EXPECT_EQ(get("/api/navigation/slices?format=gif").status, 400);
+}
+
+
+// ------------------------------------------------------------------ cortical landmarks
+
+/// Image fiducials set, each touched with the simulated pointer and recorded, and the
+/// registration accepted: the case's T_image_from_reference (and the simulator's truth).
+Eigen::Matrix4d register_patient(const std::string& c, Eigen::Matrix4d& T_truth) {
+    Reply r = post(c + "/navigation/image-fiducials", {{"fiducials", kImageFiducials}});
+    EXPECT_EQ(r.status, 201) << r.body;
+    wait_streaming();
+    for (const auto& f : kImageFiducials) {
+        T_truth = m4(sim_pointer({{"touch_image_mm", f["p_image_mm"]}})["T_image_from_reference_truth"]);
+        r = post(c + "/navigation/record", {{"label", f["label"]}});
+        EXPECT_EQ(r.status, 201) << r.body;
+    }
+    const Reply reg = post(c + "/navigation/register", json::object());
+    EXPECT_EQ(reg.status, 200) << reg.body;
+    r = post(c + "/navigation/accept", {{"image_fiducials_revision", reg.j["image_fiducials_revision"]},
+                                        {"patient_fiducials_revision", reg.j["patient_fiducials_revision"]}});
+    EXPECT_EQ(r.status, 201) << r.body;
+    return r.status == 201 ? m4(r.j["T_image_from_reference"]) : Eigen::Matrix4d::Identity();
+}
+
+/// N points on the cortex of the bundled brain mask (data/, the phantom's): from the mask's
+/// centroid outwards along directions in a 25-degree cone about a left fronto-parietal
+/// craniotomy direction, the last voxel inside the mask (nearest neighbour, 0.25 mm steps).
+std::vector<Eigen::Vector3d> cortical_points(int n) {
+    const cf::Volume m = cf::load_volume(fs::path(CF_DATA_DIR) / "brainmask_mne_ecog_binary.nii.gz");
+    const auto& d = m.geom.dims;
+    const Eigen::Affine3d world_from_index = m.geom.world_from_index(), index_from_world = world_from_index.inverse();
+    Eigen::Vector3d sum = Eigen::Vector3d::Zero();
+    double count = 0;
+    for (int k = 0; k < d[2]; k += 2)
+        for (int j = 0; j < d[1]; j += 2)
+            for (int i = 0; i < d[0]; i += 2)
+                if (m.at(i, j, k) > 0.5f) {
+                    sum += world_from_index * Eigen::Vector3d(i, j, k);
+                    count += 1;
+                }
+    EXPECT_GT(count, 1000) << "no brain in the mask";
+    const Eigen::Vector3d centre = sum / std::max(count, 1.0);
+    const auto inside = [&](const Eigen::Vector3d& w) {
+        const Eigen::Vector3d ijk = index_from_world * w;
+        const int i = int(std::lround(ijk.x())), j = int(std::lround(ijk.y())), k = int(std::lround(ijk.z()));
+        return i >= 0 && j >= 0 && k >= 0 && i < d[0] && j < d[1] && k < d[2] && m.at(i, j, k) > 0.5f;
+    };
+    const Eigen::Vector3d axis = Eigen::Vector3d(0.6, -0.2, 0.77).normalized();  // LPS: left, anterior, superior
+    const Eigen::Vector3d u = axis.cross(Eigen::Vector3d::UnitY()).normalized(), v = axis.cross(u);
+    std::vector<Eigen::Vector3d> out;
+    for (int i = 0; i < n; ++i) {
+        const double cone = i == 0 ? 0.0 : 25.0 * M_PI / 180, phi = 2 * M_PI * i / std::max(1, n - 1);
+        const Eigen::Vector3d dir = std::cos(cone) * axis + std::sin(cone) * (std::cos(phi) * u + std::sin(phi) * v);
+        Eigen::Vector3d last = centre;
+        for (double t = 0; t < 150; t += 0.25)
+            if (inside(centre + t * dir)) last = centre + t * dir;
+        out.push_back(last);
+    }
+    return out;
+}
+
+/// The simulated brain shift: 3 mm sinking along gravity (patient supine: posterior, +y in LPS)
+/// plus a per-landmark variation of up to 0.6 mm on each axis.
+Eigen::Vector3d true_shift(int i) { return Eigen::Vector3d(0.5 * std::sin(1.3 * i), 3.0 + 0.6 * std::cos(0.9 * i), -0.4 * std::sin(0.7 * i + 1)); }
+
+TEST(CorticalLandmarks, BrainShiftAgainstTheSimulatorsTruth) {
+    const auto id = new_case("brain shift truth");
+    const std::string c = "/api/cases/" + std::to_string(id);
+    Eigen::Matrix4d T_truth = Eigen::Matrix4d::Identity();
+    const Eigen::Matrix4d T = register_patient(c, T_truth);
+    const std::int64_t reg_rev = get(c + "/navigation").j["accepted"]["revision"];
+    const int n = 6;
+    const auto points = cortical_points(n);
+    ASSERT_EQ(points.size(), std::size_t(n));
+    for (int i = 1; i < n; ++i) EXPECT_GT((points[std::size_t(i)] - points[0]).norm(), 10.0) << "landmarks spread over the craniotomy";
+    const auto label = [](int i) { return "L" + std::to_string(i + 1); };
+
+    // Initial set: the pointer on each cortical point.
+    for (int i = 0; i < n; ++i) {
+        sim_pointer({{"touch_image_mm", {points[std::size_t(i)].x(), points[std::size_t(i)].y(), points[std::size_t(i)].z()}}});
+        const Reply r = post(c + "/navigation/landmarks/record", {{"label", label(i)}, {"set", "initial"}});
+        ASSERT_EQ(r.status, 201) << r.body;
+        EXPECT_EQ(r.j["recorded"]["registration_revision"], reg_rev);
+        // Through the accepted registration, the tip lands on the point (noise + registration error).
+        EXPECT_LT((v3(r.j["recorded"]["p_image_mm"]) - points[std::size_t(i)]).norm(), 0.35) << r.body;
+    }
+    // Later set: the brain has sunk; L6 is re-digitised under a mistyped label at first.
+    std::vector<Eigen::Vector3d> shifted;
+    for (int i = 0; i < n; ++i) shifted.push_back(points[std::size_t(i)] + true_shift(i));
+    for (int i = 0; i < n; ++i) {
+        sim_pointer({{"touch_image_mm", {shifted[std::size_t(i)].x(), shifted[std::size_t(i)].y(), shifted[std::size_t(i)].z()}}});
+        const Reply r = post(c + "/navigation/landmarks/record", {{"label", i == n - 1 ? std::string("L6x") : label(i)}, {"set", "later"}});
+        ASSERT_EQ(r.status, 201) << r.body;
+    }
+    Reply r = get(c + "/navigation/landmarks");
+    ASSERT_EQ(r.status, 200) << r.body;
+    EXPECT_EQ(r.j["sets"], json::parse(R"([{"set": "initial", "count": 6}, {"set": "later", "count": 6}])")) << r.body;
+    EXPECT_EQ(r.j["registration_revision"], reg_rev);
+
+    // The mistyped label shows as missing both ways.
+    r = post(c + "/navigation/brain-shift", {{"earlier", "initial"}, {"later", "later"}});
+    ASSERT_EQ(r.status, 200) << r.body;
+    EXPECT_EQ(r.j["rows"].size(), 5u);
+    EXPECT_EQ(r.j["missing_later"], json::array({"L6"}));
+    EXPECT_EQ(r.j["missing_earlier"], json::array({"L6x"}));
+    // Renamed: all six pair up.
+    r = post(c + "/navigation/landmarks/rename", {{"label", "L6x"}, {"new_label", "L6"}, {"set", "later"}});
+    ASSERT_EQ(r.status, 200) << r.body;
+    r = post(c + "/navigation/brain-shift", json::object());  // defaults: initial -> later
+    ASSERT_EQ(r.status, 200) << r.body;
+    ASSERT_EQ(r.j["rows"].size(), std::size_t(n)) << r.body;
+    EXPECT_EQ(r.j["missing_later"].size() + r.j["missing_earlier"].size(), 0u);
+    EXPECT_TRUE(r.j["same_registration"].get<bool>());
+
+    // Against the truth. Tolerance 0.25 mm per landmark and axis: each recording averages the
+    // simulator's noise (0.05 mm, 0.05 deg per tool; the reference's rotation noise at a lever
+    // of ~150 mm is ~0.13 mm per frame) over >= 4 frames (18 at 60 Hz), so a difference of two
+    // is ~0.05 mm rms (0.09 under a sanitizer, 4 frames), and both sets map through the same
+    // registration, so its error (TRE ~0.05 mm) cancels except for its rotation error times the
+    // 3 mm shift (< 0.001 mm). The mean over 6 landmarks per axis: within 0.12 mm.
+    Eigen::Vector3d sum_err = Eigen::Vector3d::Zero(), max_err = Eigen::Vector3d::Zero(), sum_true = Eigen::Vector3d::Zero();
+    for (int i = 0; i < n; ++i) {
+        const json& row = r.j["rows"][std::size_t(i)];
+        ASSERT_EQ(row["label"], label(i));
+        const Eigen::Vector3d d = v3(row["d_mm"]), truth = true_shift(i);
+        const Eigen::Vector3d err = (d - truth).cwiseAbs();
+        for (int a = 0; a < 3; ++a) EXPECT_LT(err[a], 0.25) << label(i) << " axis " << a << ": " << d.transpose() << " vs " << truth.transpose();
+        EXPECT_NEAR(row["magnitude_mm"].get<double>(), truth.norm(), 0.3);
+        sum_err += d - truth;
+        sum_true += truth;
+        max_err = max_err.cwiseMax(err);
+    }
+    const Eigen::Vector3d mean_err = sum_err / n, mean = v3(r.j["mean_d_mm"]);
+    for (int a = 0; a < 3; ++a) EXPECT_LT(std::abs(mean[a] - sum_true[a] / n), 0.12) << "axis " << a;
+    EXPECT_GT(mean.y(), 2.5);  // the sinking is seen along gravity
+    EXPECT_NE(r.j["table"].get<std::string>().find("L6"), std::string::npos);
+    std::printf("%s", r.j["table"].get<std::string>().c_str());
+    std::printf("brain shift vs truth over %d landmarks: mean error per axis (LPS) %+.3f %+.3f %+.3f mm, max |error| %.3f %.3f %.3f mm; "
+                "true mean shift %.2f %.2f %.2f mm, measured %.2f %.2f %.2f mm\n",
+                n, mean_err.x(), mean_err.y(), mean_err.z(), max_err.x(), max_err.y(), max_err.z(), sum_true.x() / n, sum_true.y() / n,
+                sum_true.z() / n, mean.x(), mean.y(), mean.z());
+
+    // A subset of labels; deleting one landmark of the later set shows it missing again.
+    r = post(c + "/navigation/brain-shift", {{"labels", {"L1", "L2"}}});
+    ASSERT_EQ(r.status, 200) << r.body;
+    EXPECT_EQ(r.j["rows"].size(), 2u);
+    r = post(c + "/navigation/landmarks/delete", {{"set", "later"}, {"label", "L3"}});
+    ASSERT_EQ(r.status, 200) << r.body;
+    EXPECT_EQ(post(c + "/navigation/brain-shift", json::object()).j["missing_later"], json::array({"L3"}));
+    // Landmarks are stored in the case (one result row per change) and audited as result.add.
+    int rows = 0;
+    const json results = get(c).j["results"];  // values: a range-for over a temporary's member would dangle
+    for (const auto& x : results) rows += x["kind"] == "nav_cortical_landmarks";
+    EXPECT_EQ(rows, 2 * n + 2);
+    int audited = 0;
+    const json trail = get(c + "/audit").j["audit"];
+    for (const auto& e : trail) audited += e["action"] == "result.add";
+    EXPECT_GE(audited, 2 * n + 2);
+    // A whole set deleted.
+    r = post(c + "/navigation/landmarks/delete", {{"set", "later"}});
+    ASSERT_EQ(r.status, 200) << r.body;
+    EXPECT_EQ(r.j["deleted"], n - 1);
+    EXPECT_EQ(r.j["sets"].size(), 1u);
+    (void)T;
+}
+
+TEST(CorticalLandmarks, BadInputIsRefusedAndNothingStoredChanges) {
+    const auto id = new_case("landmarks bad input");
+    const std::string c = "/api/cases/" + std::to_string(id);
+    wait_streaming();
+    sim_pointer({{"touch_image_mm", {40, -20, 60}}});
+    // No accepted registration: the pointer cannot be mapped into the image.
+    json before = snapshot(id);
+    Reply r = post(c + "/navigation/landmarks/record", {{"label", "L1"}});
+    EXPECT_EQ(r.status, 409) << r.body;
+    EXPECT_NE(r.body.find("no accepted patient registration"), std::string::npos) << r.body;
+    EXPECT_EQ(post("/api/cases/99999/navigation/landmarks/record", {{"label", "L1"}}).status, 404);
+    EXPECT_EQ(snapshot(id), before);
+
+    Eigen::Matrix4d T_truth;
+    register_patient(c, T_truth);
+    sim_pointer({{"touch_image_mm", {40, -20, 60}}});
+    ASSERT_EQ(post(c + "/navigation/landmarks/record", {{"label", "L1"}}).status, 201);  // set "initial"
+    before = snapshot(id);
+    const json landmarks_before = get(c + "/navigation/landmarks").j;
+
+    // The report: a set with no landmarks, the same set twice, an unknown label, bad fields.
+    r = post(c + "/navigation/brain-shift", json::object());
+    EXPECT_EQ(r.status, 409) << r.body;
+    EXPECT_NE(r.body.find("'later'"), std::string::npos) << r.body;
+    EXPECT_NE(r.body.find("sets: initial"), std::string::npos) << r.body;
+    r = post(c + "/navigation/brain-shift", {{"earlier", "initial"}, {"later", "initial"}});
+    EXPECT_EQ(r.status, 400) << r.body;
+    sim_pointer({{"touch_image_mm", {42, -20, 57}}});
+    ASSERT_EQ(post(c + "/navigation/landmarks/record", {{"label", "L2"}, {"set", "later"}}).status, 201);
+    r = post(c + "/navigation/brain-shift", json::object());  // L1 vs L2: nothing in common
+    EXPECT_EQ(r.status, 409) << r.body;
+    ASSERT_EQ(post(c + "/navigation/landmarks/delete", {{"set", "later"}}).status, 200);
+    ASSERT_EQ(post(c + "/navigation/landmarks/record", {{"label", "L1"}, {"set", "later"}}).status, 201);
+    ASSERT_EQ(post(c + "/navigation/brain-shift", json::object()).status, 200);
+    before = snapshot(id);
+    r = post(c + "/navigation/brain-shift", {{"labels", {"L1", "nowhere"}}});
+    EXPECT_EQ(r.status, 400) << r.body;
+    EXPECT_NE(r.body.find("nowhere"), std::string::npos) << r.body;
+    EXPECT_EQ(post(c + "/navigation/brain-shift", {{"labels", json::array()}}).status, 400);
+    EXPECT_EQ(post(c + "/navigation/brain-shift", {{"earlier", 3}}).status, 400);
+    EXPECT_EQ(post(c + "/navigation/brain-shift", {{"sets", {"a", "b"}}}).status, 400);
+    EXPECT_EQ(request("POST", c + "/navigation/brain-shift", "{earlier: initial").status, 400);
+    EXPECT_EQ(post("/api/cases/99999/navigation/brain-shift", json::object()).status, 404);
+
+    // Recording: bad fields, malformed JSON.
+    EXPECT_EQ(post(c + "/navigation/landmarks/record", json::object()).status, 400);
+    EXPECT_EQ(post(c + "/navigation/landmarks/record", {{"label", ""}}).status, 400);
+    EXPECT_EQ(post(c + "/navigation/landmarks/record", {{"label", "a/b"}}).status, 400);
+    EXPECT_EQ(post(c + "/navigation/landmarks/record", {{"label", "L3"}, {"set", 2}}).status, 400);
+    EXPECT_EQ(post(c + "/navigation/landmarks/record", {{"label", "L3"}, {"window_s", 10}}).status, 400);
+    EXPECT_EQ(post(c + "/navigation/landmarks/record", {{"label", "L3"}, {"colour", "red"}}).status, 400);
+    r = request("POST", c + "/navigation/landmarks/record", "{\"label\": \"L3\"");
+    EXPECT_EQ(r.status, 400) << r.body;
+    // The pointer moving, then out of sight; an unknown tool.
+    sim_pointer({{"free", true}});
+    r = post(c + "/navigation/landmarks/record", {{"label", "L3"}});
+    EXPECT_EQ(r.status, 409) << r.body;
+    EXPECT_NE(r.body.find("moved"), std::string::npos) << r.body;
+    sim_pointer({{"hidden", true}});
+    r = post(c + "/navigation/landmarks/record", {{"label", "L3"}});
+    EXPECT_EQ(r.status, 409) << r.body;
+    EXPECT_NE(r.body.find("pointer: not tracked"), std::string::npos) << r.body;
+    sim_pointer({{"touch_image_mm", {40, -20, 60}}});
+    r = post(c + "/navigation/landmarks/record", {{"label", "L3"}, {"pointer", "probe"}});
+    EXPECT_EQ(r.status, 409) << r.body;
+    EXPECT_NE(r.body.find("probe"), std::string::npos) << r.body;
+    // Rename and delete: unknown landmark or set, a clash, the same label, bad fields.
+    r = post(c + "/navigation/landmarks/rename", {{"label", "nowhere"}, {"new_label", "L9"}});
+    EXPECT_EQ(r.status, 404) << r.body;
+    EXPECT_NE(r.body.find("nowhere"), std::string::npos) << r.body;
+    sim_pointer({{"touch_image_mm", {44, -18, 58}}});
+    ASSERT_EQ(post(c + "/navigation/landmarks/record", {{"label", "L2"}}).status, 201);
+    before = snapshot(id);
+    r = post(c + "/navigation/landmarks/rename", {{"label", "L2"}, {"new_label", "L1"}, {"set", "initial"}});
+    EXPECT_EQ(r.status, 409) << r.body;
+    EXPECT_NE(r.body.find("already"), std::string::npos) << r.body;
+    EXPECT_EQ(post(c + "/navigation/landmarks/rename", {{"label", "L2"}, {"new_label", "L2"}}).status, 400);
+    EXPECT_EQ(post(c + "/navigation/landmarks/rename", {{"label", "L2"}}).status, 400);
+    r = post(c + "/navigation/landmarks/delete", {{"set", "final"}});
+    EXPECT_EQ(r.status, 404) << r.body;
+    EXPECT_NE(r.body.find("final"), std::string::npos) << r.body;
+    EXPECT_EQ(post(c + "/navigation/landmarks/delete", {{"set", "initial"}, {"label", "L7"}}).status, 404);
+    EXPECT_EQ(post(c + "/navigation/landmarks/delete", json::object()).status, 400);
+    EXPECT_EQ(request("POST", c + "/navigation/landmarks/delete", "[").status, 400);
+    // A reviewer reads the landmarks and the report, and changes nothing.
+    const std::string reviewer = token_of("lm_reviewer", "reviewer");
+    EXPECT_EQ(get(c + "/navigation/landmarks", reviewer).status, 200);
+    EXPECT_EQ(post(c + "/navigation/brain-shift", json::object(), reviewer).status, 200);
+    EXPECT_EQ(post(c + "/navigation/landmarks/record", {{"label", "L4"}}, reviewer).status, 403);
+    EXPECT_EQ(post(c + "/navigation/landmarks/rename", {{"label", "L2"}, {"new_label", "L5"}}, reviewer).status, 403);
+    EXPECT_EQ(post(c + "/navigation/landmarks/delete", {{"set", "initial"}}, reviewer).status, 403);
+    EXPECT_EQ(snapshot(id), before);
+    (void)landmarks_before;
+    sim_pointer({{"free", true}});
 }
 
 }  // namespace
