@@ -93,6 +93,27 @@ std::shared_ptr<const CaseRenderSource> render_source(const std::shared_ptr<Case
     return src;
 }
 
+/// The layers `body["modalities"]` names (when it is a list; the render module checks the rest
+/// of each entry and refuses any other shape): `t1` is `t1_src`, `ct` / `fmri` the newest plan's
+/// volume on the T1's grid. 400 naming `modalities[i].name` for a missing or unknown name, 409
+/// naming the modality when the case has no plan with it.
+std::vector<ModalityLayerSource> modality_layers(CaseStore& st, const std::shared_ptr<CaseVolumeCache>& cache, std::int64_t case_id,
+                                                 const std::shared_ptr<const CaseRenderSource>& t1_src, const json& body, const std::string& what) {
+    std::vector<ModalityLayerSource> out;
+    if (!body.is_object() || !body.contains("modalities") || !body["modalities"].is_array()) return out;
+    const json& m = body["modalities"];
+    for (std::size_t i = 0; i < m.size(); ++i) {
+        const std::string f = what + " modalities[" + std::to_string(i) + "].name";
+        if (!m[i].is_object() || !m[i].contains("name") || !m[i]["name"].is_string())
+            throw ApiError(400, "bad_request", f + ": missing (t1, ct or fmri)");
+        const std::string name = m[i]["name"].get<std::string>();
+        if (name == "t1") out.push_back({name, t1_src});
+        else if (name == "ct" || name == "fmri") out.push_back({name, render_source(cache, resolve_plan_volume(st, case_id, name, f))});
+        else throw ApiError(400, "bad_request", f + ": unknown modality '" + name.substr(0, 40) + "' (t1, ct or fmri)");
+    }
+    return out;
+}
+
 /// The case part of a render or pick request: `case_id` (and `volume_id`) name the case's
 /// volume, `modalities` the layers of a multimodal view. Both are taken out of `body` (the
 /// render module reads the rest); `modalities` stays for the module to read each layer's look.
@@ -116,18 +137,7 @@ CaseView case_view(CaseStore& st, const std::shared_ptr<CaseVolumeCache>& cache,
     if (!case_id) return v;
     const CaseVolumeRef t1 = resolve_case_volume(st, *case_id, volume_id, what);
     v.src = render_source(cache, t1);
-    if (body.contains("modalities") && body["modalities"].is_array()) {
-        const json& m = body["modalities"];
-        for (std::size_t i = 0; i < m.size(); ++i) {
-            const std::string f = what + " modalities[" + std::to_string(i) + "].name";
-            if (!m[i].is_object() || !m[i].contains("name") || !m[i]["name"].is_string())
-                throw ApiError(400, "bad_request", f + ": missing (t1, ct or fmri)");
-            const std::string name = m[i]["name"].get<std::string>();
-            if (name == "t1") v.layers.push_back({name, v.src});
-            else if (name == "ct" || name == "fmri") v.layers.push_back({name, render_source(cache, resolve_plan_volume(st, *case_id, name, f))});
-            else throw ApiError(400, "bad_request", f + ": unknown modality '" + name.substr(0, 40) + "' (t1, ct or fmri)");
-        }
-    }
+    v.layers = modality_layers(st, cache, *case_id, v.src, body, what);
     return v;
 }
 
@@ -289,7 +299,7 @@ void register_render_case_endpoints(EndpointRegistry& reg, RenderModule& render,
              }});
 
     reg.add({"POST", "/api/cases/{id}/fused", "cases.fused", Access::read,
-             "The case's photo-textured brain surface (plan + registration + photo + ROI) over its volume rendering; the POST /api/render fields plus surface_opacity, registration_id",
+             "The case's photo-textured brain surface (plan + registration + photo + ROI) over its volume rendering (multimodal with modalities); the POST /api/render fields plus surface_opacity, registration_id, modalities",
              [rm, st, work_dir, cache](const Request& r) {
                  return guarded([&] {
                      const std::int64_t id = case_id_param(r);
@@ -307,6 +317,8 @@ void register_render_case_endpoints(EndpointRegistry& reg, RenderModule& render,
                      if (!body.contains("camera") && !body.contains("focal_px")) body["camera"] = f.photo.intrinsics;
                      auto src = std::make_shared<FusedSource>();
                      src->volume = render_source(cache, resolve_case_volume(*st, id, f.t1.id, "fused"));
+                     // `modalities`: the volume pass is the T1 with the plan's CT / fMRI (GL only).
+                     std::vector<ModalityLayerSource> layers = modality_layers(*st, cache, id, src->volume, body, "fused");
                      const std::string surf_sha = f.surface.blob.sha256, photo_sha = f.photo.blob.sha256;
                      src->surface_key = surf_sha;
                      src->surface_ply_bytes = [st, surf_sha] { return st->read_blob(surf_sha); };
@@ -318,7 +330,7 @@ void register_render_case_endpoints(EndpointRegistry& reg, RenderModule& render,
                                         std::to_string(f.reg.id);
                      src->scratch_dir = (work_dir / ("fused_" + std::to_string(id))).string();
                      const std::string source = src->volume->source;
-                     RenderedImage img = rm->fused(body, src);
+                     RenderedImage img = rm->fused(body, src, std::move(layers));
                      Response resp = image_response(std::move(img), source);
                      resp.headers["X-Registration-Id"] = std::to_string(f.reg.id);
                      return resp;

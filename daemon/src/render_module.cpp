@@ -316,11 +316,9 @@ std::string default_preset(const std::string& modality) {
 }
 }  // namespace
 
-RenderedImage RenderModule::render(const nlohmann::json& r, std::shared_ptr<const CaseRenderSource> src,
-                                   std::vector<ModalityLayerSource> layers) {
-    auto job = parse_job(r, {"modalities"});
-    job->case_src = std::move(src);
-    if (job->case_src) job->view_key += "|" + job->case_src->key;
+/// The `modalities` of a request (with `layers`: one source per entry, in order) into the job's
+/// layers, the T1 first; 400 naming `modalities[i]...` for a bad entry.
+void RenderModule::parse_layers(Job& job, const nlohmann::json& r, const std::vector<ModalityLayerSource>& layers) const {
     if (r.contains("modalities")) {
         const auto& m = r["modalities"];
         if (!m.is_array() || m.empty() || m.size() > std::size_t(FusionRenderer::kMaxLayers))
@@ -338,7 +336,7 @@ RenderedImage RenderModule::render(const nlohmann::json& r, std::shared_ptr<cons
             Job::Layer L;
             L.name = layers[i].name;
             L.src = layers[i].volume;
-            for (const auto& o : job->layers)
+            for (const auto& o : job.layers)
                 if (o.name == L.name) throw bad(f + ".name", "'" + L.name + "' is listed twice");
             // transfer_function: a preset name or core's TF JSON; tf / preset as in the request.
             nlohmann::json tfj = e.contains("transfer_function") ? e["transfer_function"] : e.contains("tf") ? e["tf"] : nlohmann::json(nullptr);
@@ -368,11 +366,19 @@ RenderedImage RenderModule::render(const nlohmann::json& r, std::shared_ptr<cons
             }
             if (e.contains("visible") && !e["visible"].is_boolean()) throw bad(f + ".visible", "must be true or false");
             L.visible = e.value("visible", true);
-            job->layers.push_back(std::move(L));
+            job.layers.push_back(std::move(L));
         }
         // The reference layer (surface depth, shading) is the T1 when it is listed.
-        std::stable_partition(job->layers.begin(), job->layers.end(), [](const Job::Layer& L) { return L.name == "t1"; });
+        std::stable_partition(job.layers.begin(), job.layers.end(), [](const Job::Layer& L) { return L.name == "t1"; });
     }
+}
+
+RenderedImage RenderModule::render(const nlohmann::json& r, std::shared_ptr<const CaseRenderSource> src,
+                                   std::vector<ModalityLayerSource> layers) {
+    auto job = parse_job(r, {"modalities"});
+    job->case_src = std::move(src);
+    if (job->case_src) job->view_key += "|" + job->case_src->key;
+    parse_layers(*job, r, layers);
     auto fut = job->result.get_future();
     enqueue(job);
     return fut.get();  // rethrows what the render thread set
@@ -400,12 +406,13 @@ nlohmann::json RenderModule::pick(const nlohmann::json& r, std::shared_ptr<const
     return fut.get();
 }
 
-RenderedImage RenderModule::fused(const nlohmann::json& r, std::shared_ptr<const FusedSource> src) {
-    auto job = parse_job(r, {"surface_opacity"});
+RenderedImage RenderModule::fused(const nlohmann::json& r, std::shared_ptr<const FusedSource> src, std::vector<ModalityLayerSource> layers) {
+    auto job = parse_job(r, {"surface_opacity", "modalities"});
     job->mode = Job::Mode::fused;
     job->surface_opacity = get_num(r, "surface_opacity", 0.5, 0.0, 1.0);
     if (!job->pose) throw bad("T_camera_from_world", "missing (the fused view needs a pose)");
     job->fused_src = std::move(src);
+    parse_layers(*job, r, layers);
     auto fut = job->result.get_future();
     enqueue(job);
     return fut.get();
@@ -510,13 +517,14 @@ void RenderModule::loop() {
         if (sc.fusion_key != key || !sc.fusion) {
             sc.fusion.reset();
             sc.fusion_key.clear();
+            const std::string what = job.mode == Job::Mode::fused ? "fused modalities" : "render modalities";
             if (kind == RendererKind::cpu)
-                throw ApiError(409, "conflict", "render modalities: multimodal views need the GL renderer (renderer.kind is cpu)");
+                throw ApiError(409, "conflict", what + ": multimodal views need the GL renderer (renderer.kind is cpu)");
             std::unique_ptr<FusionRenderer> fr;
             try {
                 fr = make_gl_fusion_renderer();
             } catch (const GlError& e) {
-                throw ApiError(409, "conflict", std::string("render modalities: multimodal views need the GL renderer, and none can be made: ") + e.what());
+                throw ApiError(409, "conflict", what + ": multimodal views need the GL renderer, and none can be made: " + e.what());
             }
             for (const auto& L : job.layers) {
                 const auto vol = L.src->load();
@@ -593,7 +601,15 @@ void RenderModule::loop() {
             bool layered = false;  // the multimodal scene holds the transfer functions
             if (job->mode == Job::Mode::fused) {
                 try {
-                    r = case_renderer(*job->fused_src->volume, job->brain_only, centre_mm);
+                    // The multimodal scene when the request lists modalities (the textured surface
+                    // is composited by depth over whatever the volume pass shows), else the T1 alone.
+                    if (!job->layers.empty()) {
+                        r = fusion_renderer(*job);
+                        centre_mm = sc.fusion_centre_mm;
+                        layered = true;
+                    } else {
+                        r = case_renderer(*job->fused_src->volume, job->brain_only, centre_mm);
+                    }
                     prepare_fused(*job->fused_src);
                 } catch (const InputError& e) {
                     throw ApiError(422, "unprocessable", std::string("fused: ") + e.what());

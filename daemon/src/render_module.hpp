@@ -104,8 +104,12 @@ public:
     std::uint64_t case_preparations() const;
     /// The case's volume (src) rendered like render() with its photo-textured brain surface
     /// blended over it at `surface_opacity` (request field, 0..1, default 0.5) times the ROI's
-    /// alpha, composited by depth (core's render_fused). ApiError 400/422/503 as render().
-    RenderedImage fused(const nlohmann::json& request, std::shared_ptr<const FusedSource> src);
+    /// alpha, composited by depth (core's render_fused). With `layers` (request field
+    /// `modalities`, as render()): the volume pass is the multimodal scene of those layers (GL
+    /// fusion renderer; ApiError 409 with the CPU renderer) and the surface is composited by the
+    /// depth of its first opaque hit. ApiError 400/422/503 as render().
+    RenderedImage fused(const nlohmann::json& request, std::shared_ptr<const FusedSource> src,
+                        std::vector<ModalityLayerSource> layers = {});
     /// The loaded MRI's geometry for clients that place their own camera: centre (the standard
     /// views' target) and box in LPS mm, dims, spacing, and the brain mask's box (`brain`, null
     /// without a mask). ApiError 503 while loading or after a failed load.
@@ -120,6 +124,7 @@ private:
     struct Job;
     struct Scene;
     std::shared_ptr<Job> parse_job(const nlohmann::json& request, const std::vector<std::string>& extra_fields) const;
+    void parse_layers(Job& job, const nlohmann::json& request, const std::vector<ModalityLayerSource>& layers) const;
     void enqueue(const std::shared_ptr<Job>& job);
     void loop();
     DaemonConfig cfg_;

@@ -1,0 +1,419 @@
+// The fused view over the multimodal volume rendering (POST /api/cases/{id}/fused with
+// `modalities`, docs/api/render.md): a phantom case on a 2 mm copy of the bundled head (T1, mask,
+// photo, ROI uploaded through the API), an fMRI activation map planned by the plan job (a blob
+// on the cortex the camera sees), the phantom's true pose stored as its registration. The daemon
+// runs in-process (renderer.kind auto: GL through llvmpipe here; the GL tests skip without a
+// context), and a second one with the CPU renderer refuses the layers naming why.
+// Eigen first: <httplib.h> pulls in <resolv.h>, whose _res macro breaks Eigen's headers.
+#include "cortexfuse/core/camera.hpp"
+#include "cortexfuse/core/case.hpp"
+#include "cortexfuse/core/overlay.hpp"
+#include "cortexfuse/core/phantom.hpp"
+#include "cortexfuse/core/pose.hpp"
+#include "cortexfuse/core/roi.hpp"
+#include "cortexfuse/core/surface.hpp"
+#include "cortexfuse/core/volume.hpp"
+#include "cortexfuse/daemon/daemon.hpp"
+#include "cortexfuse/db/case_store.hpp"
+
+#include <gtest/gtest.h>
+#include <httplib.h>
+#include <unistd.h>
+
+#include <chrono>
+#include <filesystem>
+#include <fstream>
+#include <opencv2/imgcodecs.hpp>
+#include <opencv2/imgproc.hpp>
+#include <thread>
+
+using namespace cf;
+using namespace cf::daemon;
+using nlohmann::json;
+namespace fs = std::filesystem;
+
+namespace {
+
+fs::path g_root;  // every daemon's state lives under it (removed at the end)
+
+json test_config(const fs::path& state, const std::string& renderer) {
+    json c = default_config_json();
+    c["http"]["listen"] = "127.0.0.1:0";
+    c["state_dir"] = state.string();
+    c["store"]["max_upload_bytes"] = 16 << 20;
+    c["renderer"]["kind"] = renderer;
+    c["tracker"]["enabled"] = false;
+    c["camera"]["backend"] = "none";
+    c["jobs"]["phantom_cases_at_start"] = 0;
+    c["jobs"]["progress_hz"] = 50;
+    return c;
+}
+
+struct Reply {
+    int status = 0;
+    std::string body;
+    json j;
+    httplib::Headers headers;
+};
+
+std::string read_bytes(const fs::path& p) {
+    std::ifstream in(p, std::ios::binary);
+    return std::string(std::istreambuf_iterator<char>(in), {});
+}
+std::string url_encode(const std::string& s) {
+    std::string o;
+    char buf[4];
+    for (unsigned char c : s) {
+        if (std::isalnum(c) || c == '-' || c == '_' || c == '.' || c == '~') o += char(c);
+        else {
+            std::snprintf(buf, sizeof buf, "%%%02X", c);
+            o += buf;
+        }
+    }
+    return o;
+}
+
+/// The phantom: the 2 mm head, its photo and ROI from the true pose, and an fMRI map on the T1's
+/// grid with a blob (z up to 10, radius 12 mm) where the ray through the ROI's centre meets the brain.
+struct World {
+    PhantomCase pc;
+    std::string t1_bytes, mask_bytes, photo_png, fmri_bytes;
+    Eigen::Vector2d blob_px;  // the blob centre's pixel in the photo
+};
+
+const World& world() {
+    static const World w = [] {
+        World r;
+        const fs::path dir = g_root / "src";
+        fs::create_directories(dir);
+        const Volume t1 = load_volume(fs::path(CF_DATA_DIR) / "t1_head_mne_ecog.nii.gz");
+        const LabelVolume m = load_mask(fs::path(CF_DATA_DIR) / "brainmask_mne_ecog_binary.nii.gz");
+        const VolumeGeometry g = isotropic_grid(t1.geom, 2.0);
+        const Volume t1s = resample(t1, g);
+        const LabelVolume ms = resample_nearest(m, g);
+        save_volume(t1s, dir / "t1.nii.gz");
+        save_mask(ms, dir / "mask.nii.gz");
+        r.t1_bytes = read_bytes(dir / "t1.nii.gz");
+        r.mask_bytes = read_bytes(dir / "mask.nii.gz");
+        const PhantomSurface surf = build_phantom_surface(t1s, ms);
+        PhantomParams p;
+        p.seed = 11;
+        p.width = 320;
+        p.height = 240;
+        p.vary_size = false;
+        p.dslr_fraction = 0;
+        p.distortion_prob = 0;
+        p.gauze_prob = 0;
+        p.blood_prob = 0;
+        r.pc = generate_phantom_case(surf, p, 0);
+        std::vector<uchar> buf;
+        cv::imencode(".png", r.pc.photo_bgr, buf);
+        r.photo_png.assign(buf.begin(), buf.end());
+        // The first brain voxel along the ray of the ROI's centre.
+        Eigen::Vector2d c(0, 0);
+        for (const auto& q : r.pc.roi_points) c += q;
+        c /= double(std::max<std::size_t>(1, r.pc.roi_points.size()));
+        const Pose Tinv = r.pc.T_camera_from_world.inverse();
+        std::optional<Eigen::Vector3d> hit;
+        for (double z = 20; z < 1500 && !hit; z += 0.5) {
+            const Eigen::Vector3d pw = (Tinv * backproject(r.pc.camera, c, z).homogeneous()).head<3>();
+            const Eigen::Vector3d ijk = ms.geom.index_from_world() * pw;
+            const int i = int(std::lround(ijk.x())), j = int(std::lround(ijk.y())), k = int(std::lround(ijk.z()));
+            if (i >= 0 && j >= 0 && k >= 0 && i < ms.geom.dims[0] && j < ms.geom.dims[1] && k < ms.geom.dims[2] && ms.voxels[ms.geom.linear(i, j, k)])
+                hit = pw;
+        }
+        if (!hit) throw std::runtime_error("test world: the ROI's centre ray misses the brain");
+        r.blob_px = c;
+        Volume fmri = t1s;
+        for (int k = 0; k < g.dims[2]; ++k)
+            for (int j = 0; j < g.dims[1]; ++j)
+                for (int i = 0; i < g.dims[0]; ++i) {
+                    const double d = (g.world_from_index() * Eigen::Vector3d(i, j, k) - *hit).norm();
+                    fmri.voxels[g.linear(i, j, k)] = d < 12.0 ? float(4.0 + 6.0 * (1.0 - d / 12.0)) : 0.f;
+                }
+        save_volume(fmri, dir / "fmri.nii.gz");
+        r.fmri_bytes = read_bytes(dir / "fmri.nii.gz");
+        return r;
+    }();
+    return w;
+}
+
+json camera_json(const Intrinsics& K) {
+    return {{"width", K.width}, {"height", K.height}, {"fx", K.fx}, {"fy", K.fy}, {"cx", K.cx}, {"cy", K.cy},
+            {"distortion", {K.distortion[0], K.distortion[1], K.distortion[2], K.distortion[3], K.distortion[4]}}};
+}
+
+/// A daemon with its own state folder, and the HTTP calls to it.
+struct Server {
+    fs::path state;
+    std::unique_ptr<Daemon> d;
+    explicit Server(const std::string& renderer) {
+        state = g_root / renderer;
+        fs::create_directories(state);
+        d = std::make_unique<Daemon>(parse_config(test_config(state, renderer), "test"));
+        d->start();
+    }
+    ~Server() {
+        if (d) {
+            EXPECT_TRUE(d->stop());
+        }
+    }
+    Reply request(const std::string& method, const std::string& path, const std::string& body = "", const std::string& mime = "application/json") const {
+        httplib::Client c("127.0.0.1", d->port());
+        c.set_read_timeout(240, 0);
+        httplib::Result r = method == "GET" ? c.Get(path.c_str()) : c.Post(path.c_str(), body, mime.c_str());
+        Reply out;
+        if (!r) return out;
+        out.status = r->status;
+        out.body = r->body;
+        out.headers = r->headers;
+        out.j = json::parse(r->body, nullptr, false);
+        return out;
+    }
+    Reply get(const std::string& p) const { return request("GET", p); }
+    Reply post(const std::string& p, const json& b) const { return request("POST", p, b.dump()); }
+    Reply post_raw(const std::string& p, const std::string& bytes) const { return request("POST", p, bytes, "application/octet-stream"); }
+
+    /// A case with the phantom's T1, mask, photo, ROI and (when asked) fMRI map, planned by the
+    /// plan job, registered with the phantom's true pose. Returns its id (0 on failure).
+    std::int64_t planned_case(const std::string& title, bool fmri) const {
+        const World& w = world();
+        const Reply c = post("/api/cases", {{"title", title}});
+        EXPECT_EQ(c.status, 201) << c.body;
+        const std::int64_t id = c.j.value("id", std::int64_t{0});
+        const std::string base = "/api/cases/" + std::to_string(id);
+        EXPECT_EQ(post_raw(base + "/volumes?name=t1.nii.gz&modality=T1", w.t1_bytes).status, 201);
+        EXPECT_EQ(post_raw(base + "/volumes?name=mask.nii.gz&modality=mask", w.mask_bytes).status, 201);
+        if (fmri) {
+            EXPECT_EQ(post_raw(base + "/volumes?name=fmri.nii.gz&modality=fMRI", w.fmri_bytes).status, 201);
+        }
+        const Reply ph = post_raw(base + "/photos?name=photo.png&camera=" + url_encode(camera_json(w.pc.camera).dump()), w.photo_png);
+        EXPECT_EQ(ph.status, 201) << ph.body;
+        json pts = json::array();
+        for (const auto& q : w.pc.roi_points) pts.push_back({q.x(), q.y()});
+        EXPECT_EQ(post(base + "/roi", {{"points", pts}}).status, 201);
+        const Reply job = post("/api/jobs", {{"kind", "plan"}, {"params", {{"case_id", id}, {"max_triangles", 30000}}}});
+        EXPECT_EQ(job.status, 202) << job.body;
+        std::string s;
+        json last;
+        const auto t0 = std::chrono::steady_clock::now();
+        while (s != "succeeded" && s != "failed" && s != "cancelled" &&
+               std::chrono::steady_clock::now() - t0 < std::chrono::seconds(280)) {
+            std::this_thread::sleep_for(std::chrono::milliseconds(50));
+            last = get("/api/jobs/" + std::to_string(job.j.value("id", 0))).j;
+            s = last.value("state", std::string());
+        }
+        EXPECT_EQ(s, "succeeded") << last.dump();
+        if (s != "succeeded") return 0;
+        // The registration: the phantom's true pose, stored as a run of the case (what a
+        // register job stores), through a second connection to the store.
+        auto store = cf::db::CaseStore::open(state / "store");
+        cf::db::RegistrationInput in;
+        in.final_pose = json{{"T_camera_from_world", pose_to_json(w.pc.T_camera_from_world)}};
+        in.initial_pose = in.final_pose;
+        in.nmi = 1.2;
+        store->add_registration(id, in, cf::db::Actor{"test", std::nullopt});
+        return id;
+    }
+};
+
+std::unique_ptr<Server> g_gl;
+std::int64_t g_case = 0;
+
+const Server& gl() {
+    if (!g_gl) {
+        g_root = fs::temp_directory_path() / ("cf_daemon_fused_modalities_" + std::to_string(::getpid()));
+        fs::create_directories(g_root);
+        ::setenv("LP_NUM_THREADS", "2", 0);
+        g_gl = std::make_unique<Server>("auto");
+        g_case = g_gl->planned_case("fused fmri", true);
+    }
+    return *g_gl;
+}
+
+class Env : public ::testing::Environment {
+public:
+    void TearDown() override {
+        g_gl.reset();
+        if (!g_root.empty()) fs::remove_all(g_root);
+    }
+};
+const auto* const g_env = ::testing::AddGlobalTestEnvironment(new Env);
+
+cv::Mat decode(const Reply& r) {
+    return cv::imdecode(cv::Mat(1, int(r.body.size()), CV_8U, const_cast<char*>(r.body.data())), cv::IMREAD_COLOR);
+}
+double mean_abs_diff(const cv::Mat& a, const cv::Mat& b) {
+    cv::Mat d;
+    cv::absdiff(a, b, d);
+    const cv::Scalar m = cv::mean(d);
+    return (m[0] + m[1] + m[2]) / 3.0;
+}
+
+/// The fused request from the registered camera (png: exact pixels) with these layers; a clear
+/// green fMRI look so that the blob stands out from the photo and the cortex.
+json fused_body(bool fmri_visible, double fmri_weight, double surface_opacity = 0.5) {
+    const json green = {{"colour", {{0, 0, 1, 0}, {1, 0, 1, 0}}}, {"opacity", {{0, 0}, {0.02, 1}, {1, 1}}}};
+    return {{"format", "png"},
+            {"surface_opacity", surface_opacity},
+            {"modalities", json::array({{{"name", "t1"}, {"transfer_function", "cortex_t1"}},
+                                        {{"name", "fmri"}, {"transfer_function", green}, {"weight", fmri_weight}, {"visible", fmri_visible}}})}};
+}
+
+std::string base() { return "/api/cases/" + std::to_string(g_case); }
+
+size_t files_under(const fs::path& d) {
+    size_t n = 0;
+    std::error_code ec;
+    for (auto it = fs::recursive_directory_iterator(d, ec); !ec && it != fs::recursive_directory_iterator(); it.increment(ec)) n += it->is_regular_file();
+    return n;
+}
+
+/// Skips (with the daemon's reason) where no GL context can be made.
+#define SKIP_WITHOUT_GL(reply)                                                                \
+    do {                                                                                          \
+        if ((reply).status == 409 && (reply).body.find("GL renderer") != std::string::npos) {     \
+            GTEST_SKIP() << "no GL here: " << (reply).body;                                       \
+        }                                                                                         \
+    } while (0)
+
+// ---------------------------------------------------------------------------------------------
+
+TEST(FusedModalities, TheFmriLayerShowsInFrontOfThePhotoWhereItIsNearer) {
+    const Server& s = gl();
+    ASSERT_GT(g_case, 0);
+    const World& w = world();
+    const Reply shown = s.post(base() + "/fused", fused_body(true, 1.0));
+    SKIP_WITHOUT_GL(shown);
+    ASSERT_EQ(shown.status, 200) << shown.body;
+    EXPECT_EQ(shown.headers.find("X-Renderer")->second, "gl");
+    const Reply hidden = s.post(base() + "/fused", fused_body(false, 1.0));
+    ASSERT_EQ(hidden.status, 200) << hidden.body;
+    const cv::Mat a = decode(shown), b = decode(hidden);
+    ASSERT_EQ(a.cols, w.pc.camera.width);
+    ASSERT_EQ(a.rows, w.pc.camera.height);
+    ASSERT_EQ(b.size(), a.size());
+    // Inside the brain (where the T1-only picture is not background), around the blob: the
+    // fMRI layer changes the picture, and at the blob's centre it is green, drawn over the photo
+    // (the blob reaches 12 mm in front of the cortex: the surface is behind the volume's first
+    // hit there, so the photo is not blended in).
+    cv::Mat grey;
+    cv::cvtColor(b, grey, cv::COLOR_BGR2GRAY);
+    int brain = 0, changed = 0;
+    for (int v = 0; v < a.rows; ++v)
+        for (int u = 0; u < a.cols; ++u) {
+            if (grey.at<uchar>(v, u) < 8) continue;
+            ++brain;
+            const cv::Vec3b p = a.at<cv::Vec3b>(v, u), q = b.at<cv::Vec3b>(v, u);
+            changed += std::abs(p[0] - q[0]) + std::abs(p[1] - q[1]) + std::abs(p[2] - q[2]) > 30;
+        }
+    const int u0 = int(std::lround(w.blob_px.x())), v0 = int(std::lround(w.blob_px.y()));
+    const cv::Vec3b c = a.at<cv::Vec3b>(v0, u0), c_off = b.at<cv::Vec3b>(v0, u0);
+    std::printf("fused fMRI shown vs hidden: %d of %d brain pixels changed by > 30 (sum of BGR); blob centre (%d, %d) BGR shown (%d, %d, %d), "
+                "hidden (%d, %d, %d), mean diff %.2f\n",
+                changed, brain, u0, v0, c[0], c[1], c[2], c_off[0], c_off[1], c_off[2], mean_abs_diff(a, b));
+    EXPECT_GT(brain, 1000);
+    EXPECT_GT(changed, 100) << "the fMRI blob (radius 12 mm, ~6 px a mm) shows";
+    EXPECT_LT(changed, brain / 2) << "only around the blob";
+    EXPECT_GT(int(c[1]), int(c[2]) + 60) << "green over red at the blob's centre";
+    EXPECT_GT(int(c[1]), int(c[0]) + 60) << "green over blue at the blob's centre";
+    EXPECT_LT(int(c_off[1]), int(c_off[2]) + 30) << "no green there without the layer (the photo / cortex)";
+}
+
+TEST(FusedModalities, WeightZeroEqualsHiddenAndTheT1AloneEqualsThePlainFusedView) {
+    const Server& s = gl();
+    ASSERT_GT(g_case, 0);
+    const Reply hidden = s.post(base() + "/fused", fused_body(false, 1.0));
+    SKIP_WITHOUT_GL(hidden);
+    ASSERT_EQ(hidden.status, 200) << hidden.body;
+    const Reply zero = s.post(base() + "/fused", fused_body(true, 0.0));
+    ASSERT_EQ(zero.status, 200) << zero.body;
+    const Reply half = s.post(base() + "/fused", fused_body(true, 0.3));
+    ASSERT_EQ(half.status, 200) << half.body;
+    const Reply plain = s.post(base() + "/fused", {{"format", "png"}, {"surface_opacity", 0.5}});
+    ASSERT_EQ(plain.status, 200) << plain.body;
+    const cv::Mat h = decode(hidden);
+    const double d_zero = mean_abs_diff(h, decode(zero)), d_half = mean_abs_diff(h, decode(half)), d_plain = mean_abs_diff(h, decode(plain));
+    std::printf("fused vs fMRI hidden: weight 0 %.3f, weight 0.3 %.3f, no modalities (T1 renderer) %.3f grey levels\n", d_zero, d_half, d_plain);
+    EXPECT_LT(d_zero, 0.01) << "weight 0 draws nothing";
+    EXPECT_GT(d_half, 0.05) << "weight 0.3 draws something";
+    EXPECT_LT(d_plain, 1.0) << "the T1 layer alone looks like the single-volume fused view";
+    // Another viewpoint (the UI's orbit) with the layers renders too.
+    json turned = fused_body(true, 1.0);
+    turned["T_camera_from_world"] = pose_to_json(orbit_pose(world().pc.T_camera_from_world, Eigen::Vector3d(0, 10, 0), 20, 0));
+    turned["width"] = 160;
+    turned["height"] = 120;
+    turned["focal_px"] = 300.0;
+    EXPECT_EQ(s.post(base() + "/fused", turned).status, 200);
+}
+
+TEST(FusedModalities, BadModalitiesAreRefusedNamingThemAndNothingIsStored) {
+    const Server& s = gl();
+    ASSERT_GT(g_case, 0);
+    const json before_case = s.get(base()).j;
+    const json before_regs = s.get(base() + "/registrations").j;
+    const std::size_t before_files = files_under(s.state / "store");
+    // A modality the plan lacks: 409 naming it.
+    json no_ct = fused_body(true, 1.0);
+    no_ct["modalities"].push_back({{"name", "ct"}});
+    Reply r = s.post(base() + "/fused", no_ct);
+    EXPECT_EQ(r.status, 409) << r.body;
+    EXPECT_NE(r.body.find("modalities[2]"), std::string::npos) << r.body;
+    EXPECT_NE(r.body.find("no plan with a CT"), std::string::npos) << r.body;
+    // Malformed lists and entries: 400 naming the field.
+    const std::vector<std::pair<json, std::string>> bad = {
+        {"fmri", "modalities"},
+        {json::array(), "modalities"},
+        {json::array({5}), "modalities[0].name"},
+        {json::array({{{"weight", 1}}}), "modalities[0].name"},
+        {json::array({{{"name", "pet"}}}), "unknown modality 'pet'"},
+        {json::array({{{"name", "t1"}}, {{"name", "t1"}}}), "listed twice"},
+        {json::array({{{"name", "t1"}}, {{"name", "fmri"}, {"weight", 2}}}), "modalities[1].weight"},
+        {json::array({{{"name", "t1"}}, {{"name", "fmri"}, {"weight", "heavy"}}}), "modalities[1].weight"},
+        {json::array({{{"name", "t1"}}, {{"name", "fmri"}, {"visible", "yes"}}}), "modalities[1].visible"},
+        {json::array({{{"name", "t1"}}, {{"name", "fmri"}, {"colour", 1}}}), "modalities[1].colour"},
+        {json::array({{{"name", "t1"}}, {{"name", "fmri"}, {"transfer_function", "sunset"}}}), "unknown preset 'sunset'"},
+        {json::array({{{"name", "t1"}}, {{"name", "fmri"}, {"transfer_function", {{"colour", 1}}}}}), "modalities[1].transfer_function"},
+        {json::array({{{"name", "t1"}}, {{"name", "fmri"}}, {{"name", "t1"}}, {{"name", "fmri"}}, {{"name", "t1"}}}), "modalities"},
+    };
+    for (const auto& [m, needle] : bad) {
+        json b = {{"format", "png"}, {"modalities", m}};
+        r = s.post(base() + "/fused", b);
+        EXPECT_EQ(r.status, 400) << m.dump() << " -> " << r.body;
+        EXPECT_NE(r.body.find(needle), std::string::npos) << m.dump() << " -> " << r.body;
+    }
+    // Renders and refusals store nothing: the case, its registrations and the store's files are as they were.
+    const Reply ok = s.post(base() + "/fused", fused_body(true, 1.0));
+    EXPECT_TRUE(ok.status == 200 || ok.status == 409) << ok.body;
+    const json after_case = s.get(base()).j, bc = before_case;
+    EXPECT_EQ(after_case.value("results", json()), bc.value("results", json()));
+    EXPECT_EQ(after_case.value("volumes", json()), bc.value("volumes", json()));
+    EXPECT_EQ(after_case.value("photos", json()), bc.value("photos", json()));
+    EXPECT_EQ(s.get(base() + "/registrations").j, before_regs);
+    EXPECT_EQ(files_under(s.state / "store"), before_files) << "no blob written by a render";
+}
+
+// A daemon with the CPU ray caster: the fused view with layers is refused naming the reason
+// (the UI then shows the T1 alone and says why), and without them it still renders.
+TEST(FusedModalities, TheCpuRendererRefusesLayersNamingWhy) {
+    gl();  // the shared test data and folder
+    Server cpu("cpu");
+    const std::int64_t id = cpu.planned_case("fused cpu", false);
+    ASSERT_GT(id, 0);
+    const std::string b = "/api/cases/" + std::to_string(id);
+    json body = {{"format", "png"}, {"width", 160}, {"height", 120}, {"modalities", json::array({{{"name", "t1"}}})}};
+    Reply r = cpu.post(b + "/fused", body);
+    EXPECT_EQ(r.status, 409) << r.body;
+    EXPECT_NE(r.body.find("fused modalities: multimodal views need the GL renderer"), std::string::npos) << r.body;
+    // A modality the plan lacks is named first, on any renderer.
+    body["modalities"] = json::array({{{"name", "t1"}}, {{"name", "fmri"}}});
+    r = cpu.post(b + "/fused", body);
+    EXPECT_EQ(r.status, 409) << r.body;
+    EXPECT_NE(r.body.find("no plan with an fMRI map"), std::string::npos) << r.body;
+    body.erase("modalities");
+    r = cpu.post(b + "/fused", body);
+    EXPECT_EQ(r.status, 200) << r.body;
+    EXPECT_EQ(r.headers.find("X-Renderer")->second, "cpu");
+}
+
+}  // namespace
