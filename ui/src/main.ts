@@ -19,6 +19,7 @@ import type { TfJson } from "./tf_model";
 import { canWrite, KIOSK, loadSession, roleLabel, saveSession, sessionFromLogin, wsUrl, type Session } from "./session";
 import { auditRows, fmtBytes, fmtTime, holdings, patientLine, registrationRows, type AuditEntry, type CaseRecord } from "./case_detail";
 import { trackerScreen } from "./tracker_screen";
+import { FusedModalityPanel, fusedLayers, fusedRequest, layersNeedGl } from "./fused_modalities";
 import { caseRenderFields, defaultLayers, histogramBars, histogramPath, layerHistogramPath, ModalityTabs, newestT1, planModalities, type ModalityLayer, type VolumeHistogram } from "./case_render";
 
 // ---- shared state ------------------------------------------------------------------------
@@ -859,6 +860,10 @@ function caseFused(id: number, body: HTMLElement, alive: Alive, got: (c: CaseRec
     }
     const T0 = reg.final_pose!.T_camera_from_world;
     let T = T0, preset = "cortex_t1", seq = 0;
+    // The multimodal volume under the photo (fused_modalities.ts): the T1 and the plan's CT /
+    // fMRI on/off and weighted; only the modalities the plan has are offered.
+    let layers = fusedLayers(c);
+    const modalityBox = h("div", { "data-testid": "fused-modality-box" });
     let tagView: ReturnType<typeof mountTags> | null = null;
     const snapBtn = h("button", { class: "btn", "data-testid": "fused-camera-view" }, "Camera view");
     photoImg.hidden = true;
@@ -868,17 +873,27 @@ function caseFused(id: number, body: HTMLElement, alive: Alive, got: (c: CaseRec
       presetBox.querySelectorAll("button").forEach((b) => b.classList.toggle("active", b.dataset.value === preset));
       const mine = ++seq;
       try {
-        const blob = await apiPostBlob(`/api/cases/${id}/fused`, { width: w, height: hh, preset, camera: photo.intrinsics,
-                                                                T_camera_from_world: T, surface_opacity: Number(opacity.value) / 100 });
+        const blob = await apiPostBlob(`/api/cases/${id}/fused`, fusedRequest({ width: w, height: hh, preset, camera: photo.intrinsics,
+                                                                T_camera_from_world: T, surfaceOpacity: Number(opacity.value) / 100 }, layers));
         if (!alive() || mine !== seq) return;
+        modelImg.dataset.layers = layers ? layers.filter((l) => l.visible && l.weight > 0).map((l) => l.name).join(",") : "t1";
         const u = URL.createObjectURL(blob); urls.push(u); modelImg.src = u;
         modelImg.dataset.full = "true";
         modelImg.dataset.preset = preset;
         modelImg.dataset.textured = "true";
         stage.dataset.atCamera = String(T === T0);
         tagView?.redraw();
-      } catch (e) { showError(e); }
+      } catch (e) {
+        if (layers && layersNeedGl(plainMessage(e))) {  // a CPU-only daemon: the T1 alone, and why
+          layers = null;
+          modalityBox.replaceChildren(h("p", { class: "muted", "data-testid": "fused-modality-note" }, "CT and fMRI need the GL renderer, which this cart does not have: the photo is shown over the T1 alone."));
+          void renderTextured();
+          return;
+        }
+        showError(e);
+      }
     };
+    if (layers) modalityBox.replaceChildren(h("h2", {}, "Modalities"), new FusedModalityPanel(layers, (final) => { if (final) void renderTextured(); }).el);
     opacity.removeEventListener("input", setOpacity);
     opacity.addEventListener("input", () => { opacityOut.textContent = `${opacity.value} %`; });
     opacity.addEventListener("change", () => { void renderTextured(); });
@@ -892,7 +907,7 @@ function caseFused(id: number, body: HTMLElement, alive: Alive, got: (c: CaseRec
         stage.dataset.atCamera = "true";
       } catch (e) { showError(e); }
     });
-    presetBox.after(h("h2", {}, "View"), h("div", { class: "choices" }, snapBtn),
+    presetBox.after(modalityBox, h("h2", {}, "View"), h("div", { class: "choices" }, snapBtn),
                     h("p", { class: "muted" }, "Drag on the picture to turn the model; Camera view goes back to the photo's camera."));
     // Stimulation tags (src/tags.ts): placed on the photo at the registered camera, drawn in 3D.
     const atCam = () => stage.dataset.atCamera === "true";

@@ -137,9 +137,31 @@ export function needsNewSlices(prev: Vec3 | null, p: Vec3 | null, minMoveMm = 0.
   return Math.hypot(p[0] - prev[0], p[1] - prev[1], p[2] - prev[2]) > minMoveMm;
 }
 
-/** GET /api/navigation/slices for a point. */
-export function slicesPath(p: Vec3, size: number, fovMm = 220): string {
-  return `/api/navigation/slices?x=${p[0].toFixed(2)}&y=${p[1].toFixed(2)}&z=${p[2].toFixed(2)}&size=${Math.round(size)}&fov_mm=${fovMm}&format=jpeg`;
+/** The volume the Tracker screen's slices are cut from: the open case's own T1 (its newest, the
+ *  volume its image fiducials are placed on), or null for the daemon's bundled MRI (data.t1). */
+export interface SliceVolume { caseId: number; volumeId: number }
+
+/** The slice volume of a case record (GET /api/cases/{id}): its newest T1, else null (a case
+ *  without a T1 of its own shows the bundled MRI). */
+export function caseSliceVolume(c: { id: number; volumes?: { id: number; modality: string }[] } | null): SliceVolume | null {
+  if (!c) return null;
+  let best: number | null = null;
+  for (const v of c.volumes ?? []) if (v.modality === "T1" && (best === null || v.id > best)) best = v.id;
+  return best === null ? null : { caseId: c.id, volumeId: best };
+}
+
+const volumeQuery = (vol: SliceVolume | null) => (vol ? `case_id=${vol.caseId}&volume_id=${vol.volumeId}` : "");
+
+/** GET /api/navigation/slices for a point: of the case's volume (`vol`), else of data.t1. */
+export function slicesPath(p: Vec3, size: number, fovMm = 220, vol: SliceVolume | null = null): string {
+  const q = volumeQuery(vol);
+  return `/api/navigation/slices?x=${p[0].toFixed(2)}&y=${p[1].toFixed(2)}&z=${p[2].toFixed(2)}&size=${Math.round(size)}&fov_mm=${fovMm}&format=jpeg${q ? `&${q}` : ""}`;
+}
+
+/** GET /api/navigation/suggested-fiducials on the same volume as the slices. */
+export function suggestedFiducialsPath(vol: SliceVolume | null): string {
+  const q = volumeQuery(vol);
+  return `/api/navigation/suggested-fiducials${q ? `?${q}` : ""}`;
 }
 
 /** The pointer tip in use, in words. */

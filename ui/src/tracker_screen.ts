@@ -5,10 +5,11 @@
 import "./tracker_screen.css";
 import { apiBlob, apiJson, plainMessage } from "./api";
 import { h } from "./dom";
+import { landmarksPanel } from "./landmarks_panel";
 import {
   canRegister, fiducialLines, fmtPoint, freVerdict, needsNewSlices, newFiducialLabel, nextFiducial, pivotLine, placeFiducial, pointerInImage, rateView,
-  sliceTapToImageMm, slicesPath, tipLine, toolViews,
-  type NavState, type PivotAnswer, type PointerAnswer, type Registration, type Vec3,
+  caseSliceVolume, sliceTapToImageMm, slicesPath, suggestedFiducialsPath, tipLine, toolViews,
+  type NavState, type PivotAnswer, type PointerAnswer, type Registration, type SliceVolume, type Vec3,
 } from "./tracker_model";
 
 export interface TrackerScreenDeps {
@@ -31,6 +32,9 @@ export function trackerScreen(caseId: number, body: HTMLElement, deps: TrackerSc
   let pointer: PointerAnswer | null = null;
   let isSim = false;
   let busy = false;
+  // The slices' volume: the case's own T1 once its record says it has one, else data.t1;
+  // undefined until the record is read (no slices asked for before, so none of the wrong head).
+  let sliceVol: SliceVolume | null | undefined;
 
   // ---- left: tools and the live view ----
   const tools = h("ul", { class: "nav-tools", "data-testid": "tracker-tools" });
@@ -62,7 +66,9 @@ export function trackerScreen(caseId: number, body: HTMLElement, deps: TrackerSc
     h("p", { class: "muted" }, "Touch each fiducial with the pointer tip, hold still, press Record."),
     record, h("div", { class: "nav-row" }, simTouch), msg, fre,
     h("div", { class: "nav-row" }, accept, redo), accepted, list);
-  body.replaceChildren(h("div", { class: "nav-screen", "data-testid": "tracker-screen" }, left, right));
+  // ---- below: cortical landmarks and brain shift (landmarks_panel.ts) ----
+  const landmarks = landmarksPanel(caseId, { alive: deps.alive, writable: deps.writable, hasAccepted: () => !!nav?.accepted });
+  body.replaceChildren(h("div", { class: "nav-screen", "data-testid": "tracker-screen" }, left, right, landmarks.el));
 
   const say = (text: string, bad = true) => {
     msg.textContent = text;
@@ -121,6 +127,7 @@ export function trackerScreen(caseId: number, body: HTMLElement, deps: TrackerSc
       }
     }
     if (deps.alive()) draw();
+    await landmarks.refresh();
   }
 
   const act = async (what: () => Promise<void>) => {
@@ -153,7 +160,7 @@ export function trackerScreen(caseId: number, body: HTMLElement, deps: TrackerSc
     say(`The simulated pointer rests on “${f.label}”: press Record.`, false);
   }));
   suggest.addEventListener("click", () => act(async () => {
-    const s = await apiJson<{ fiducials: { label: string; p_image_mm: Vec3 }[] }>("GET", "/api/navigation/suggested-fiducials");
+    const s = await apiJson<{ fiducials: { label: string; p_image_mm: Vec3 }[] }>("GET", suggestedFiducialsPath(sliceVol ?? null));
     await apiJson("POST", `${base}/image-fiducials`, { fiducials: s.fiducials });
     say(`${s.fiducials.length} skin fiducials placed on the MRI.`, false);
     await reload();
@@ -238,15 +245,17 @@ export function trackerScreen(caseId: number, body: HTMLElement, deps: TrackerSc
       } else caption = pointer?.p_reference_mm ? "No registration yet: the pointer cannot be placed on the MRI." : "Pointer or reference not seen.";
     }
     sliceCaption.textContent = caption;
-    if (!sliceInFlight && needsNewSlices(lastP, p)) {
+    if (sliceVol !== undefined && !sliceInFlight && needsNewSlices(lastP, p)) {
       sliceInFlight = true;
       const at = p as Vec3;
-      apiBlob(slicesPath(at, SLICE_PX)).then((b) => {
+      const vol = sliceVol;
+      apiBlob(slicesPath(at, SLICE_PX, undefined, vol)).then((b) => {
         if (!deps.alive()) return;
         if (sliceUrl) URL.revokeObjectURL(sliceUrl);
         sliceUrl = URL.createObjectURL(b);
         sliceImg.src = sliceUrl;
         sliceImg.dataset.point = at.map((v) => v.toFixed(1)).join(",");
+        sliceImg.dataset.volume = vol ? `case ${vol.caseId} volume ${vol.volumeId}` : "bundled";
         lastP = at;
       }).catch(() => { /* the caption and the tools say what is wrong; the next poll retries */ })
         .finally(() => { sliceInFlight = false; });
@@ -268,6 +277,11 @@ export function trackerScreen(caseId: number, body: HTMLElement, deps: TrackerSc
 
   apiJson<{ modules?: { tracker?: { source?: string } } }>("GET", "/api/status")
     .then((s) => { isSim = s.modules?.tracker?.source === "sim"; draw(); }).catch(() => {});
+  // The case's own T1 for the slices (and the suggested fiducials); the bundled MRI without one
+  // or when the record cannot be read.
+  apiJson<{ id: number; volumes?: { id: number; modality: string }[] }>("GET", `/api/cases/${caseId}`)
+    .then((c) => { sliceVol = caseSliceVolume(c); }, () => { sliceVol = null; })
+    .finally(() => { suggest.dataset.volume = sliceVol ? `case ${sliceVol.caseId} volume ${sliceVol.volumeId}` : "bundled"; });
   reload().catch((e) => { deps.showError(e); say(plainMessage(e)); });
   poll();
 }
