@@ -3,7 +3,10 @@
 // by touch, a recording refused while the pointer moves (the daemon's words on the screen), the
 // FRE shown, the registration accepted, the pointer tip on the slices, a pivot calibration with
 // the pointer held still refused, the pointer dropping out shown in red and Record refused.
-// Screenshots tracker-01-fiducials.png, tracker-02-registered.png, tracker-03-pointer-missing.png.
+// Then cortical landmarks recorded twice (initial, later: a known simulated brain shift) and the
+// brain-shift table checked against the truth; a landmark refused while the pointer is hidden.
+// Screenshots tracker-01-fiducials.png, tracker-02-registered.png, tracker-05-brain-shift.png (and
+// the panel alone, tracker-05b-brain-shift-panel.png), tracker-03-pointer-missing.png.
 
 /** page: a playwright page on the daemon at base (the kiosk: every access). */
 export async function trackerE2E({ page, base, step, expect, shot, checkTargets }) {
@@ -69,6 +72,43 @@ export async function trackerE2E({ page, base, step, expect, shot, checkTargets 
   await checkTargets("tracker");
   await shot("tracker-02-registered");
 
+  // Cortical landmarks (issue 5): three touched with the simulated pointer and recorded in the
+  // initial set, then touched again displaced by a known shift (3 mm along +y, posterior: the
+  // brain sinking in a supine patient, plus a little per landmark) and recorded in the later set
+  // under the suggested labels; the brain-shift table shows the truth per landmark and axis.
+  const cortex = [[40, -20, 60], [48, -8, 55], [33, -30, 64]];
+  const shift = [[0.4, 3.0, -0.3], [-0.3, 3.4, 0.2], [0.1, 2.6, 0.0]];
+  const recordLandmark = async (p, set, label) => {
+    expect((await api("POST", "/api/tracker/sim/pointer", { touch_image_mm: p })).status === 200, `simulated pointer on ${label} (${set})`);
+    await page.waitForTimeout(700); // a whole 0.3 s window of frames with the pointer still
+    const suggested = await page.getByTestId("lm-label").inputValue();
+    expect(suggested === label, `label suggested for ${set}: ${suggested} (expected ${label})`);
+    await page.getByTestId("lm-record-btn").tap();
+    await page.locator(`[data-testid="lm-row-${label}"][data-${set}="true"]`).waitFor({ timeout: 10000 });
+  };
+  await page.getByTestId("landmarks-panel").scrollIntoViewIfNeeded();
+  for (let i = 0; i < cortex.length; i++) await recordLandmark(cortex[i], "initial", `L${i + 1}`);
+  await page.getByTestId("lm-set-later").tap();
+  for (let i = 0; i < cortex.length; i++) await recordLandmark(cortex[i].map((v, a) => v + shift[i][a]), "later", `L${i + 1}`);
+  await page.waitForFunction(() => Number(document.querySelector('[data-testid="shift-headline"]')?.dataset.n) === 3, null, { timeout: 10000 });
+  const shiftRows = await page.locator('[data-testid="shift-table"] tbody tr').evaluateAll((trs) =>
+    trs.map((tr) => [...tr.querySelectorAll("td")].map((td) => td.textContent)));
+  const num = (t) => Number(t.replace("−", "-"));
+  let worst = 0;
+  shiftRows.forEach((r, i) => { for (let a = 0; a < 3; a++) worst = Math.max(worst, Math.abs(num(r[a + 1]) - shift[i][a])); });
+  expect(shiftRows.length === 3 && shiftRows.map((r) => r[0]).join() === "L1,L2,L3", `three rows in the brain-shift table (${shiftRows.map((r) => r[0])})`);
+  expect(worst < 0.3, `the brain shift per landmark and axis within 0.3 mm of the simulated truth (worst ${worst.toFixed(3)} mm)`);
+  step(`brain shift: ${await page.getByTestId("shift-headline").textContent()}; ${await page.getByTestId("shift-summary").textContent()}; worst axis error vs truth ${worst.toFixed(3)} mm`);
+  // Bad input: a label with '/' cannot be recorded (the button stays disabled).
+  await page.getByTestId("lm-label").fill("a/b");
+  expect(await page.getByTestId("lm-record-btn").isDisabled(), "a label with '/' cannot be recorded");
+  await page.getByTestId("lm-label").fill("");
+  await checkTargets("tracker landmarks");
+  await page.getByTestId("landmarks-panel").scrollIntoViewIfNeeded();
+  await shot("tracker-05-brain-shift");
+  // The panel alone: shot() calls screenshot() on what it is given, here the panel's locator.
+  await shot("tracker-05b-brain-shift-panel", page.getByTestId("landmarks-panel"));
+
   // The pointer drops out (hidden in the simulator): its row turns red and says so, Record is
   // then refused naming it; back in view, green again.
   expect((await api("POST", "/api/tracker/sim/pointer", { hidden: true })).status === 200, "simulated pointer hidden");
@@ -77,6 +117,12 @@ export async function trackerE2E({ page, base, step, expect, shot, checkTargets 
   const lost = page.getByTestId("nav-msg").filter({ hasText: "pointer: not tracked" });
   await lost.waitFor({ timeout: 10000 });
   step(`pointer dropped out: ${await page.getByTestId("tool-pointer").textContent()}; Record: ${await lost.textContent()}`);
+  await page.getByTestId("lm-label").fill("L9");
+  await page.getByTestId("lm-record-btn").tap();
+  const lmLost = page.getByTestId("lm-msg").filter({ hasText: "pointer: not tracked" });
+  await lmLost.waitFor({ timeout: 10000 });
+  const lmAfter = await api("GET", `/api/cases/${id}/navigation/landmarks`);
+  expect(lmAfter.j?.landmarks?.length === 6, `a landmark refused while the pointer is hidden stores nothing (${lmAfter.j?.landmarks?.length} landmarks)`);
   await shot("tracker-03-pointer-missing");
   expect((await api("POST", "/api/tracker/sim/pointer", { free: true })).status === 200, "simulated pointer back");
   await page.locator('[data-testid="tool-pointer"][data-level="ok"]').waitFor({ timeout: 10000 });
