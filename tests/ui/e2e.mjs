@@ -8,6 +8,7 @@ import os from "node:os";
 import path from "node:path";
 import { trackerE2E } from "./e2e_tracker.mjs";
 import { liveViewE2E, planCheckE2E, tagsE2E, trackerPlaceE2E } from "./e2e_live_tags.mjs";
+import { fusedModalitiesE2E, uploadActivation } from "./e2e_fused_modalities.mjs";
 
 const [daemonBin, uiDir, artDir] = process.argv.slice(2).map((p) => path.resolve(p));
 const CHROMIUM = process.env.CF_CHROMIUM ?? "/usr/bin/chromium";
@@ -421,6 +422,8 @@ try {
     await checkTargets("fused");
     // Planning (the plan job, from Contents), then the photo on the model: the textured
     // surface from the registered camera, turned by a drag, and back with Camera view.
+    // An fMRI map first, so that the plan has a layer to toggle (e2e_fused_modalities.mjs).
+    await uploadActivation({ base, caseId: importedId, maskPath: new URL("../../data/brainmask_mne_ecog_binary.nii.gz", import.meta.url).pathname, step, expect });
     await page.getByTestId("case-tab-contents").tap();
     await page.getByTestId("case-plan").tap();
     await page.waitForURL(/#\/jobs$/, { timeout: 10000 });
@@ -448,6 +451,8 @@ try {
       await page.getByTestId("fused-camera-view").tap();
       await page.waitForFunction(() => document.querySelector('[data-testid="fused-stage"]')?.dataset.atCamera === "true", null, { timeout: 30000 });
       step("fused view turned by a drag and back to the camera's view");
+      // The modalities under the photo: fMRI off and on by touch (e2e_fused_modalities.mjs).
+      await fusedModalitiesE2E({ page, step, expect, shot, checkTargets, caseId: importedId });
       // Stimulation tags placed on the photo by touch, shown in 3D (e2e_live_tags.mjs).
       await tagsE2E({ page, step, expect, shot, checkTargets, caseId: importedId, touchDrag });
     } else {
