@@ -633,6 +633,30 @@ TEST(CorticalLandmarks, BrainShiftAgainstTheSimulatorsTruth) {
     ASSERT_EQ(r.status, 200) << r.body;
     EXPECT_EQ(r.j["deleted"], n - 1);
     EXPECT_EQ(r.j["sets"].size(), 1u);
+
+    // A registration accepted again between the sets: earlier landmarks keep their image
+    // positions (and their registration's revision); the report says the sets went through
+    // different registrations.
+    const json initial_before = get(c + "/navigation/landmarks").j["landmarks"];
+    const json acc = get(c + "/navigation").j["accepted"];
+    r = post(c + "/navigation/accept", {{"image_fiducials_revision", acc["image_fiducials_revision"]},
+                                        {"patient_fiducials_revision", acc["patient_fiducials_revision"]}});
+    ASSERT_EQ(r.status, 201) << r.body;
+    const std::int64_t reg_rev2 = r.j["revision"];
+    EXPECT_NE(reg_rev2, reg_rev);
+    sim_pointer({{"touch_image_mm", {shifted[0].x(), shifted[0].y(), shifted[0].z()}}});
+    r = post(c + "/navigation/landmarks/record", {{"label", "L1"}, {"set", "later"}});
+    ASSERT_EQ(r.status, 201) << r.body;
+    EXPECT_EQ(r.j["recorded"]["registration_revision"], reg_rev2);
+    json initial_now = json::array();
+    for (const auto& l : r.j["landmarks"])
+        if (l["set"] == "initial") initial_now.push_back(l);
+    EXPECT_EQ(initial_now, initial_before);
+    r = post(c + "/navigation/brain-shift", json::object());
+    ASSERT_EQ(r.status, 200) << r.body;
+    EXPECT_FALSE(r.j["same_registration"].get<bool>());
+    EXPECT_EQ(r.j["registration_revisions"]["earlier"], json::array({reg_rev}));
+    EXPECT_EQ(r.j["registration_revisions"]["later"], json::array({reg_rev2}));
     (void)T;
 }
 
