@@ -10,20 +10,54 @@
 #include "commands.hpp"
 #include "cortexfuse/core/case.hpp"
 #include "cortexfuse/core/error.hpp"
+#include "cortexfuse/core/fusion.hpp"
 #include "cortexfuse/core/overlay.hpp"
+#include "cortexfuse/core/rasterizer.hpp"
 #include "cortexfuse/core/renderer.hpp"
 #include "cortexfuse/core/skull_strip.hpp"
 #include "cortexfuse/core/transfer_function.hpp"
+#include "cortexfuse/render/gl_renderer.hpp"
+#include "cortexfuse/render/renderer_factory.hpp"
 #include "progress_bar.hpp"
 
 namespace fs = std::filesystem;
 
 namespace cf::cli {
 
+namespace {
+
+/// The craniotomy in a plan's CT: voxels that the camera sees inside the ROI, from the lens
+/// down to 3 mm below the brain surface, are hidden (the bone flap is off in the photo), so
+/// the photo's cortex is not covered by the skull from the camera's pose. 1 = shown.
+LabelVolume craniotomy_mask(const VolumeGeometry& g, const SurfaceMesh& mesh, const Intrinsics& K, const Pose& T,
+                            const cv::Mat& roi_alpha) {
+    const RasterBuffers zb = rasterize(mesh.raster(), K, T);
+    LabelVolume m;
+    m.geom = g;
+    m.voxels.assign(g.voxel_count(), 1);
+    const Eigen::Affine3d cam_from_index = Eigen::Affine3d(T.matrix()) * g.world_from_index();
+    for (int k = 0; k < g.dims[2]; ++k)
+        for (int j = 0; j < g.dims[1]; ++j)
+            for (int i = 0; i < g.dims[0]; ++i) {
+                const Eigen::Vector3d pc = cam_from_index * Eigen::Vector3d(i, j, k);
+                if (pc.z() <= 1.0) continue;
+                const auto px = project_camera(K, pc);
+                if (!px) continue;
+                const int u = int(std::lround(px->x())), v = int(std::lround(px->y()));
+                if (u < 0 || v < 0 || u >= zb.width || v >= zb.height) continue;
+                if (!roi_alpha.empty() && roi_alpha.at<uint8_t>(v, u) < 128) continue;
+                const float z = zb.depth_mm[zb.index(u, v)];
+                if (std::isfinite(z) && pc.z() < z + 3.0) m.voxels[g.linear(i, j, k)] = 0;
+            }
+    return m;
+}
+
+}  // namespace
+
 void add_overlay(CLI::App& app) {
     struct Opts {
-        std::string case_dir, result, out, mesh, tf = "cortex_t1";
-        double opacity = 0.5;
+        std::string case_dir, result, out, mesh, tf = "cortex_t1", plan, renderer = "auto";
+        double opacity = 0.5, ct_weight = 0.6, fmri_weight = 1.0;
         int view_width = 800, max_triangles = 200000;
         std::vector<double> yaws{-35, 35}, pitches{25};
         std::vector<std::string> cast;
@@ -42,10 +76,20 @@ void add_overlay(CLI::App& app) {
     cmd->add_option("--yaw", o->yaws, "free viewpoints: orbit angles about the vertical, degrees")->capture_default_str();
     cmd->add_option("--pitch", o->pitches, "free viewpoints: orbit angles about the horizontal, degrees")->capture_default_str();
     cmd->add_option("--tf", o->tf, "transfer function preset or JSON file for the volume")->capture_default_str();
+    cmd->add_option("--plan", o->plan, "a `cortexfuse plan` folder of this case's T1: its brain surface (unless --mesh) "
+                                       "and its CT / fMRI on the T1 grid, fused in the volume rendering");
+    cmd->add_option("--renderer", o->renderer, "volume rendering: auto (GL when the plan adds modalities and a GL "
+                                               "context can be made, else CPU), cpu or gl")
+        ->capture_default_str();
+    cmd->add_option("--ct-weight", o->ct_weight, "weight of the plan's CT layer (0 hides it)")
+        ->check(CLI::Range(0.0, 1.0))->capture_default_str();
+    cmd->add_option("--fmri-weight", o->fmri_weight, "weight of the plan's fMRI layer (0 hides it)")
+        ->check(CLI::Range(0.0, 1.0))->capture_default_str();
     cmd->add_option("--cast-back", o->cast, "photo pixel \"u,v\" to cast back onto the surface (repeatable)");
     cmd->callback([o] {
         run_guarded("overlay", [o]() -> int {
             const auto t0 = std::chrono::steady_clock::now();
+            const RendererKind kind = parse_renderer_kind(o->renderer);
             const CaseSpec cs = read_case(o->case_dir);
             const Pose T = parse_pose(read_json_file(o->result), o->result);
             std::vector<Eigen::Vector2d> cast_px;
@@ -68,9 +112,42 @@ void add_overlay(CLI::App& app) {
             } else {
                 mask = skull_strip(vol, {}, &bar.progress());
             }
+            // The plan's extra modalities, all on the plan's T1 grid, which must be the case's.
+            struct Layer {
+                std::string name;
+                Volume volume;
+                TransferFunction tf;
+                double weight;
+            };
+            std::vector<Layer> extra;
+            const fs::path plan(o->plan);
+            if (!o->plan.empty()) {
+                if (!fs::is_directory(plan)) throw InputError(o->plan, "--plan: not a folder");
+                const fs::path pm = plan / "brain_mask.nii.gz";
+                if (fs::exists(pm) && !load_mask(pm).geom.same_grid(vol.geom))
+                    throw InputError(o->plan, "the plan was made from another T1 (its grid differs from the case volume's "
+                                              "grid): plan the case's own volume");
+                if (fs::exists(plan / "ct_on_t1.nii.gz") && o->ct_weight > 0)
+                    extra.push_back({"ct", load_volume(plan / "ct_on_t1.nii.gz"), preset_transfer_function("ct_bone"),
+                                     o->ct_weight});
+                if (fs::exists(plan / "fmri_on_t1.nii.gz") && o->fmri_weight > 0) {
+                    const fs::path tfp = plan / "fmri_transfer_function.json";
+                    extra.push_back({"fmri", load_volume(plan / "fmri_on_t1.nii.gz"),
+                                     fs::exists(tfp) ? load_transfer_function(tfp) : preset_transfer_function("fmri_hot"),
+                                     o->fmri_weight});
+                }
+                for (const auto& L : extra)
+                    if (!L.volume.geom.same_grid(vol.geom))
+                        throw InputError((plan / (L.name + "_on_t1.nii.gz")).string(),
+                                         "not on the case volume's grid (the plan was made from another T1)");
+            }
             SurfaceMesh mesh;
-            if (!o->mesh.empty()) {
-                mesh = load_mesh(o->mesh);
+            const std::string mesh_path =
+                !o->mesh.empty() ? o->mesh
+                                 : (!o->plan.empty() && fs::exists(plan / "brain_surface.ply") ? (plan / "brain_surface.ply").string()
+                                                                                              : std::string());
+            if (!mesh_path.empty()) {
+                mesh = load_mesh(mesh_path);
             } else {
                 SurfaceParams sp;
                 sp.max_triangles = o->max_triangles;
@@ -86,7 +163,40 @@ void add_overlay(CLI::App& app) {
 
             // Fused pictures: from the camera's pose and orbiting about the exposed cortex.
             TransferFunction tf = fs::exists(o->tf) ? load_transfer_function(o->tf) : preset_transfer_function(o->tf);
-            auto renderer = make_cpu_renderer(vol, tf, &mask);
+            // The volume rendering: the T1 alone on the CPU ray caster (the reference), or the
+            // plan's modalities fused in one GL ray-casting pass (the CPU caster draws one layer).
+            std::unique_ptr<Renderer> renderer;
+            std::vector<std::string> drawn{"t1"};
+            std::string fallback_note;
+            if (!extra.empty() && kind != RendererKind::cpu) {
+                try {
+                    auto fr = make_gl_fusion_renderer();
+                    fr->add_layer(vol, tf, &mask);
+                    for (const auto& L : extra) {
+                        LabelVolume keep;
+                        if (L.name == "ct") keep = craniotomy_mask(L.volume.geom, mesh, K, T, alpha);
+                        LayerSettings ls;
+                        ls.weight = L.weight;
+                        fr->add_layer(L.volume, L.tf, L.name == "ct" ? &keep : nullptr, ls);
+                        drawn.push_back(L.name);
+                    }
+                    renderer = std::move(fr);
+                } catch (const GlError& e) {
+                    if (kind == RendererKind::gl) throw;
+                    drawn.assign(1, "t1");
+                    fallback_note = std::string("GL unavailable (") + e.what() + ")";
+                }
+            }
+            if (!renderer && !extra.empty()) {
+                std::string names;
+                for (const auto& L : extra) names += (names.empty() ? "" : ", ") + L.name;
+                std::cerr << "overlay: note: the CPU renderer cannot fuse modalities; only the T1 is drawn (" << names
+                          << " of the plan left out" << (fallback_note.empty() ? "" : ": " + fallback_note) << ")\n";
+            }
+            if (!renderer) {
+                if (kind == RendererKind::gl) renderer = make_renderer(kind, vol, tf, &mask);
+                else renderer = make_cpu_renderer(vol, tf, &mask);
+            }
             const double s = std::min(1.0, double(o->view_width) / K.width);
             const Intrinsics Kv = K.scaled(s);
             Eigen::Vector3d pivot = Eigen::Vector3d::Zero();
@@ -120,7 +230,10 @@ void add_overlay(CLI::App& app) {
             const nlohmann::json j = {{"format", "cortexfuse-overlay/1"},
                                       {"case", o->case_dir},
                                       {"result", o->result},
-                                      {"mesh", o->mesh.empty() ? "built from the case volume" : o->mesh},
+                                      {"mesh", mesh_path.empty() ? "built from the case volume" : mesh_path},
+                                      {"plan", o->plan.empty() ? nlohmann::json(nullptr) : nlohmann::json(o->plan)},
+                                      {"renderer", renderer->name()},
+                                      {"modalities", drawn},
                                       {"vertices", mesh.vertices.size()},
                                       {"triangles", mesh.triangles.size()},
                                       {"visible_vertices", tm.visible_count},

@@ -1,0 +1,257 @@
+// `cortexfuse overlay CASE RESULT --plan PLAN --out DIR` run as a user runs it, on a planned
+// phantom case built here (2 mm copy of the shipped head): the fused PNGs show the plan's CT
+// and fMRI (GL fusion scene), and with GL unavailable the CPU draws the T1 alone and says so
+// in one line. The plan folder is written by the test (CT-like and fMRI volumes on the T1
+// grid, as `cortexfuse plan` leaves them), so the test needs no co-registration run.
+#include <gtest/gtest.h>
+
+#include <cstdlib>
+#include <filesystem>
+#include <fstream>
+#include <nlohmann/json.hpp>
+#include <opencv2/core.hpp>
+#include <opencv2/imgcodecs.hpp>
+
+#include "../../cli/process.hpp"
+#include "cortexfuse/core/case.hpp"
+#include "cortexfuse/core/overlay.hpp"
+#include "cortexfuse/core/phantom.hpp"
+#include "cortexfuse/core/roi.hpp"
+#include "cortexfuse/core/surface.hpp"
+#include "cortexfuse/core/transfer_function.hpp"
+#include "cortexfuse/core/volume.hpp"
+#include "cortexfuse/render/gl_renderer.hpp"
+
+namespace fs = std::filesystem;
+using cf::test::run_process;
+
+namespace {
+
+struct Planned {
+    fs::path dir, case_dir, result, plan, other_plan;
+    Eigen::Vector2d fmri_px;  // where the fMRI blob is seen in the camera's fused picture
+    double view_scale = 1.0;
+};
+
+void write_json(const fs::path& p, const nlohmann::json& j) { std::ofstream(p) << j.dump(1); }
+
+const Planned& planned() {
+    static const Planned w = [] {
+        Planned r;
+        r.dir = fs::temp_directory_path() / ("cf_overlay_plan_cli_" + std::to_string(::getpid()));
+        fs::remove_all(r.dir);
+        fs::create_directories(r.dir);
+        const cf::Volume t1_full = cf::load_volume(fs::path(CF_DATA_DIR) / "t1_head_mne_ecog.nii.gz");
+        const cf::LabelVolume m_full = cf::load_mask(fs::path(CF_DATA_DIR) / "brainmask_mne_ecog_binary.nii.gz");
+        const cf::VolumeGeometry g = cf::isotropic_grid(t1_full.geom, 2.0);
+        const cf::Volume t1 = cf::resample(t1_full, g);
+        const cf::LabelVolume mask = cf::resample_nearest(m_full, g);
+        cf::save_volume(t1, r.dir / "t1.nii.gz");
+        cf::save_mask(mask, r.dir / "brain_mask.nii.gz");
+        const cf::PhantomSurface surface = cf::build_phantom_surface(t1, mask);
+        cf::PhantomParams p;
+        p.seed = 5;
+        p.width = 240;
+        p.height = 160;
+        p.vary_size = false;
+        p.dslr_fraction = 0;
+        p.distortion_prob = 0;
+        p.gauze_prob = 0;
+        p.blood_prob = 0;
+        const cf::PhantomCase pc = cf::generate_phantom_case(surface, p, 0);
+        r.case_dir = r.dir / "case";
+        cf::write_phantom_case(pc, r.case_dir, "../t1.nii.gz", "../brain_mask.nii.gz");
+        r.result = r.dir / "result.json";
+        write_json(r.result, {{"T_camera_from_world", cf::pose_to_json(pc.T_camera_from_world)}});
+
+        // The plan: its mask and surface, a CT-like volume (bone outside the brain where the
+        // T1 is bright, soft tissue inside) and an fMRI t-map with one blob under the ROI.
+        r.plan = r.dir / "plan";
+        fs::create_directories(r.plan);
+        cf::save_mask(mask, r.plan / "brain_mask.nii.gz");
+        cf::SurfaceMesh mesh;
+        mesh.vertices = surface.mesh.vertices;
+        mesh.triangles = surface.mesh.triangles;
+        mesh.normals = surface.normals;
+        cf::save_mesh(mesh, r.plan / "brain_surface.ply");
+        cf::Volume ct = t1;
+        const auto st = cf::intensity_stats(t1);
+        for (size_t i = 0; i < ct.voxels.size(); ++i)
+            ct.voxels[i] = mask.voxels[i] ? 40.f : (t1.voxels[i] > st.p50 ? 900.f : -1000.f);
+        cf::save_volume(ct, r.plan / "ct_on_t1.nii.gz");
+        Eigen::Vector2d c = Eigen::Vector2d::Zero();
+        for (const auto& q : pc.roi_points) c += q;
+        c /= double(pc.roi_points.size());
+        const auto hit = cf::cast_back(mesh, pc.camera, pc.T_camera_from_world, c);
+        if (!hit) throw std::runtime_error("test setup: the ROI centre does not hit the surface");
+        r.fmri_px = c;
+        cf::Volume fmri = t1;
+        const Eigen::Affine3d w_from_i = g.world_from_index();
+        for (int k = 0; k < g.dims[2]; ++k)
+            for (int j = 0; j < g.dims[1]; ++j)
+                for (int i = 0; i < g.dims[0]; ++i) {
+                    const double d = ((w_from_i * Eigen::Vector3d(i, j, k)) - hit->p_world_mm).norm();
+                    fmri.voxels[g.linear(i, j, k)] = d < 10.0 ? 8.f : 0.f;
+                }
+        cf::save_volume(fmri, r.plan / "fmri_on_t1.nii.gz");
+        write_json(r.plan / "fmri_transfer_function.json", cf::to_json(cf::preset_transfer_function("fmri_hot")));
+
+        // A plan of another T1 (a 3 mm grid): must be refused.
+        r.other_plan = r.dir / "other_plan";
+        fs::create_directories(r.other_plan);
+        cf::save_mask(cf::resample_nearest(m_full, cf::isotropic_grid(t1_full.geom, 3.0)), r.other_plan / "brain_mask.nii.gz");
+        return r;
+    }();
+    // The folder goes when the test program ends.
+    static const struct RemoveAtExit {
+        fs::path dir;
+        ~RemoveAtExit() {
+            std::error_code ec;
+            fs::remove_all(dir, ec);
+        }
+    } remove_at_exit{w.dir};
+    return w;
+}
+
+cf::test::ProcessResult overlay(const std::vector<std::string>& extra, const fs::path& out) {
+    std::vector<std::string> a{CF_CORTEXFUSE_EXE, "overlay", planned().case_dir.string(), planned().result.string(),
+                               "--out", out.string(), "--yaw", "30", "--pitch", "20"};
+    a.insert(a.end(), extra.begin(), extra.end());
+    return run_process(a, 280.0);
+}
+
+nlohmann::json read_json(const fs::path& p) {
+    std::ifstream in(p);
+    return nlohmann::json::parse(in);
+}
+
+/// Pixels of the fMRI map's colours (dark red to yellow: blue far below red). The T1's
+/// cortex is pink (blue about 0.6-0.7 of red), the CT's bone white-beige, the photo grey.
+int hot_pixels(const cv::Mat& bgr) {
+    int n = 0;
+    for (int y = 0; y < bgr.rows; ++y)
+        for (int x = 0; x < bgr.cols; ++x) {
+            const auto& p = bgr.at<cv::Vec3b>(y, x);
+            if (p[2] > 120 && p[0] < 0.35 * p[2]) ++n;
+        }
+    return n;
+}
+
+double mean_abs_diff(const cv::Mat& a, const cv::Mat& b) {
+    cv::Mat d;
+    cv::absdiff(a, b, d);
+    const cv::Scalar s = cv::mean(d);
+    return (s[0] + s[1] + s[2]) / 3.0;
+}
+
+class GlEnv {
+public:
+    explicit GlEnv(bool disable) {
+        if (const char* e = std::getenv("CF_GL_DISABLE")) saved_ = e, had_ = true;
+        if (disable) ::setenv("CF_GL_DISABLE", "1", 1);
+        else ::unsetenv("CF_GL_DISABLE");
+    }
+    ~GlEnv() {
+        if (had_) ::setenv("CF_GL_DISABLE", saved_.c_str(), 1);
+        else ::unsetenv("CF_GL_DISABLE");
+    }
+
+private:
+    std::string saved_;
+    bool had_ = false;
+};
+
+bool gl_available(std::string& why) {
+    GlEnv env(false);
+    try {
+        cf::probe_gl();
+        return true;
+    } catch (const std::exception& e) {
+        why = e.what();
+        return false;
+    }
+}
+
+}  // namespace
+
+TEST(OverlayPlanCli, FusedPicturesAreMultimodalWithGl) {
+    std::string why;
+    if (!gl_available(why)) GTEST_SKIP() << "no GL context: " << why;
+    const auto& w = planned();
+    GlEnv env(false);
+    const fs::path t1_out = w.dir / "t1_only", mm_out = w.dir / "multimodal";
+    const auto a = overlay({"--mesh", (w.plan / "brain_surface.ply").string()}, t1_out);
+    ASSERT_EQ(a.exit_code, 0) << a.err;
+    const auto b = overlay({"--plan", w.plan.string()}, mm_out);
+    ASSERT_EQ(b.exit_code, 0) << b.err;
+    const auto j = read_json(mm_out / "overlay.json");
+    EXPECT_EQ(j["modalities"], nlohmann::json({"t1", "ct", "fmri"}));
+    EXPECT_EQ(j["mesh"], (w.plan / "brain_surface.ply").string()) << "the plan's surface is used without --mesh";
+    EXPECT_EQ(read_json(t1_out / "overlay.json")["modalities"], nlohmann::json({"t1"}));
+    // From the camera and from both free viewpoints the pictures change (the CT's bone around
+    // the craniotomy, the fMRI map).
+    for (const char* f : {"fused_camera.png", "fused_yaw30.png", "fused_pitch20.png"}) {
+        const cv::Mat t = cv::imread((t1_out / f).string()), m = cv::imread((mm_out / f).string());
+        ASSERT_FALSE(t.empty()) << f;
+        ASSERT_FALSE(m.empty()) << f;
+        ASSERT_EQ(t.size(), m.size()) << f;
+        EXPECT_GT(mean_abs_diff(t, m), 5.0) << f;
+    }
+    // The activation is where it was put: its colours near the ROI centre from the camera,
+    // none there in the T1-only picture.
+    {
+        const cv::Mat t = cv::imread((t1_out / "fused_camera.png").string());
+        const cv::Mat m = cv::imread((mm_out / "fused_camera.png").string());
+        const double s = double(m.cols) / 240.0;
+        const cv::Rect box = cv::Rect(int(w.fmri_px.x() * s) - 25, int(w.fmri_px.y() * s) - 25, 50, 50) &
+                             cv::Rect(0, 0, m.cols, m.rows);
+        EXPECT_GT(hot_pixels(m(box)), 100);
+        EXPECT_LT(hot_pixels(t(box)), 10);
+    }
+    // Weight 0 leaves a modality out; without the CT the fMRI map shows from a free viewpoint.
+    const auto c = overlay({"--plan", w.plan.string(), "--fmri-weight", "0"}, w.dir / "no_fmri");
+    ASSERT_EQ(c.exit_code, 0) << c.err;
+    EXPECT_EQ(read_json(w.dir / "no_fmri" / "overlay.json")["modalities"], nlohmann::json({"t1", "ct"}));
+    const auto d = overlay({"--plan", w.plan.string(), "--ct-weight", "0"}, w.dir / "no_ct");
+    ASSERT_EQ(d.exit_code, 0) << d.err;
+    EXPECT_EQ(read_json(w.dir / "no_ct" / "overlay.json")["modalities"], nlohmann::json({"t1", "fmri"}));
+    const cv::Mat t = cv::imread((t1_out / "fused_yaw30.png").string());
+    const cv::Mat f = cv::imread((w.dir / "no_ct" / "fused_yaw30.png").string());
+    ASSERT_FALSE(f.empty());
+    EXPECT_GT(hot_pixels(f), hot_pixels(t) + 100);
+}
+
+TEST(OverlayPlanCli, CpuFallbackDrawsTheT1AloneAndSaysSo) {
+    const auto& w = planned();
+    GlEnv env(true);
+    const fs::path t1_out = w.dir / "cpu_t1", fb_out = w.dir / "cpu_fallback";
+    const auto a = overlay({"--mesh", (w.plan / "brain_surface.ply").string()}, t1_out);
+    ASSERT_EQ(a.exit_code, 0) << a.err;
+    const auto b = overlay({"--plan", w.plan.string()}, fb_out);
+    ASSERT_EQ(b.exit_code, 0) << b.err;
+    EXPECT_NE(b.err.find("only the T1 is drawn (ct, fmri of the plan left out"), std::string::npos) << b.err;
+    const auto j = read_json(fb_out / "overlay.json");
+    EXPECT_EQ(j["modalities"], nlohmann::json({"t1"}));
+    // The same picture as without the plan: the CPU ray caster of the T1 alone.
+    for (const char* f : {"fused_camera.png", "fused_yaw30.png"}) {
+        const cv::Mat t = cv::imread((t1_out / f).string()), m = cv::imread((fb_out / f).string());
+        ASSERT_FALSE(t.empty()) << f;
+        ASSERT_FALSE(m.empty()) << f;
+        EXPECT_EQ(mean_abs_diff(t, m), 0.0) << f;
+    }
+    // --renderer gl does not fall back: a clear error.
+    const auto c = overlay({"--plan", w.plan.string(), "--renderer", "gl"}, w.dir / "gl_forced");
+    EXPECT_NE(c.exit_code, 0);
+    EXPECT_NE(c.err.find("OpenGL"), std::string::npos) << c.err;
+}
+
+TEST(OverlayPlanCli, PlanOfAnotherT1IsRefused) {
+    const auto& w = planned();
+    const auto r = overlay({"--plan", w.other_plan.string()}, w.dir / "other");
+    EXPECT_NE(r.exit_code, 0);
+    EXPECT_NE(r.err.find("another T1"), std::string::npos) << r.err;
+    EXPECT_NE(r.err.find(w.other_plan.string()), std::string::npos) << r.err;
+    const auto n = overlay({"--plan", (w.dir / "no_such_plan").string()}, w.dir / "none");
+    EXPECT_NE(n.exit_code, 0);
+    EXPECT_NE(n.err.find("not a folder"), std::string::npos) << n.err;
+}
