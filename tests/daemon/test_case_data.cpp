@@ -13,6 +13,8 @@
 #include "cortexfuse/daemon/jobs.hpp"
 #include "cortexfuse/db/case_store.hpp"
 
+#include "daemon_fixture.hpp"
+
 #include <arpa/inet.h>
 #include <gtest/gtest.h>
 #include <httplib.h>
@@ -47,96 +49,29 @@ namespace fs = std::filesystem;
 namespace {
 
 constexpr std::int64_t kUploadLimit = 8 << 20;  // the bundled T1 (4.3 MB) fits
-fs::path g_state;
-std::unique_ptr<Daemon> g_daemon;
+using namespace cf::daemon_test;
 
-int port() {
-    if (!g_daemon) {
-        g_state = fs::temp_directory_path() / ("cf_daemon_case_data_" + std::to_string(::getpid()));
-        json c = default_config_json();
-        c["http"]["listen"] = "127.0.0.1:0";
-        c["http"]["max_body_bytes"] = 65536;
-        c["store"]["max_upload_bytes"] = kUploadLimit;
-        c["state_dir"] = g_state.string();
-        c["renderer"]["kind"] = "cpu";
-        c["jobs"]["phantom_cases_at_start"] = 0;
-        c["jobs"]["progress_hz"] = 20;
-        g_daemon = std::make_unique<Daemon>(parse_config(c, "test"));
-        g_daemon->start();
-    }
-    return g_daemon->port();
-}
-
-class Env : public ::testing::Environment {
-public:
-    void TearDown() override {
-        if (!g_daemon) return;
-        EXPECT_TRUE(g_daemon->stop());
-        g_daemon.reset();
-        fs::remove_all(g_state);
-    }
-};
-const auto* const g_env = ::testing::AddGlobalTestEnvironment(new Env);
-
-struct Reply {
-    int status = 0;
-    std::string body;
-    json j;
-    std::string content_type;
-};
+SharedDaemon& g_d = add_shared_daemon("cf_daemon_case_data", [](const fs::path& state) {
+    json c = base_test_config(state, "cpu");
+    c["http"]["max_body_bytes"] = 65536;
+    c["store"]["max_upload_bytes"] = kUploadLimit;
+    c["jobs"]["progress_hz"] = 20;
+    return c;
+});
+const fs::path& g_state = g_d.state();
 
 Reply request(const std::string& method, const std::string& path, const std::string& body = "", const std::string& token = "",
               const std::string& mime = "application/octet-stream") {
-    httplib::Client c("127.0.0.1", port());
-    c.set_read_timeout(120, 0);
-    httplib::Headers h;
-    if (!token.empty()) h.emplace("Authorization", "Bearer " + token);
-    httplib::Result r = method == "GET" ? c.Get(path.c_str(), h) : c.Post(path.c_str(), h, body, mime.c_str());
-    Reply out;
-    if (!r) return out;
-    out.status = r->status;
-    out.body = r->body;
-    out.content_type = r->get_header_value("Content-Type");
-    out.j = json::parse(r->body, nullptr, false);
-    return out;
+    return g_d.get().request(method, path, body, mime, token);
 }
-Reply get(const std::string& path, const std::string& token = "") { return request("GET", path, "", token); }
-Reply post_json(const std::string& path, const json& body, const std::string& token = "") {
-    return request("POST", path, body.dump(), token, "application/json");
-}
+Reply get(const std::string& path, const std::string& token = "") { return g_d.get().get(path, token); }
+Reply post_json(const std::string& path, const json& body, const std::string& token = "") { return g_d.get().post(path, body, token); }
+int port() { return g_d.port(); }
 
-std::string read_bytes(const fs::path& p) {
-    std::ifstream in(p, std::ios::binary);
-    return std::string(std::istreambuf_iterator<char>(in), {});
-}
-
-std::string url_encode(const std::string& s) {
-    std::string o;
-    char buf[4];
-    for (unsigned char c : s) {
-        if (std::isalnum(c) || c == '-' || c == '_' || c == '.' || c == '~') o += char(c);
-        else {
-            std::snprintf(buf, sizeof buf, "%%%02X", c);
-            o += buf;
-        }
-    }
-    return o;
-}
-
-std::int64_t new_case(const std::string& title) {
-    const Reply r = post_json("/api/cases", {{"title", title}});
-    EXPECT_EQ(r.status, 201) << r.body;
-    return r.j.value("id", std::int64_t{0});
-}
+std::int64_t new_case(const std::string& title) { return g_d.get().new_case(title); }
 
 /// A reviewer's and a surgeon's session (created by the kiosk, which is admin).
-std::string token_of(const std::string& name, const std::string& role) {
-    Reply r = post_json("/api/users", {{"name", name}, {"password", "long enough pw"}, {"role", role}});
-    EXPECT_TRUE(r.status == 201 || r.status == 409) << r.body;
-    r = post_json("/api/login", {{"name", name}, {"password", "long enough pw"}});
-    EXPECT_EQ(r.status, 200) << r.body;
-    return r.j.value("token", std::string());
-}
+std::string token_of(const std::string& name, const std::string& role) { return g_d.get().token_of(name, role); }
 
 size_t blob_count() {
     size_t n = 0;

@@ -12,6 +12,8 @@
 #include "cortexfuse/core/volume.hpp"
 #include "cortexfuse/daemon/daemon.hpp"
 
+#include "daemon_fixture.hpp"
+
 #include <gtest/gtest.h>
 #include <httplib.h>
 #include <unistd.h>
@@ -31,36 +33,49 @@ namespace fs = std::filesystem;
 
 namespace {
 
-fs::path g_state;
-std::unique_ptr<Daemon> g_daemon;
+using namespace cf::daemon_test;
+
 constexpr double kShiftXmm = 30.0;  // the case's volume: data.t1 moved this far along +x (LPS)
+
+json test_config(const fs::path& state) {
+    json c = base_test_config(state, "auto");
+    c["store"]["max_upload_bytes"] = 16 << 20;
+    c["tracker"]["enabled"] = false;
+    c["camera"]["backend"] = "none";
+    c["jobs"]["progress_hz"] = 50;
+    return c;
+}
 
 struct Data {
     std::string t1_bytes, mask_bytes, shifted_t1_bytes, shifted_mask_bytes, ct_bytes;
     fs::path t1_path, mask_path;
 };
+const Data& data();
 
-std::string read_bytes(const fs::path& p) {
-    std::ifstream in(p, std::ios::binary);
-    return std::string(std::istreambuf_iterator<char>(in), {});
-}
+SharedDaemon& g_d = add_shared_daemon(
+    "cf_daemon_case_render",
+    [](const fs::path& state) {
+        fs::create_directories(state);
+        ::setenv("LP_NUM_THREADS", "2", 0);
+        json c = test_config(state);
+        c["data"]["t1"] = data().t1_path.string();
+        c["data"]["brain_mask"] = data().mask_path.string();
+        return c;
+    },
+    180, [] { set_plan_store_hook_for_tests({}); });
+const fs::path& g_state = g_d.state();
 
 const Data& data() {
     static const Data d = [] {
         Data r;
         const fs::path dir = g_state / "src";
-        fs::create_directories(dir);
-        const Volume t1 = load_volume(fs::path(CF_DATA_DIR) / "t1_head_mne_ecog.nii.gz");
-        const LabelVolume m = load_mask(fs::path(CF_DATA_DIR) / "brainmask_mne_ecog_binary.nii.gz");
-        const VolumeGeometry g = isotropic_grid(t1.geom, 2.0);
-        Volume t1s = resample(t1, g);
-        LabelVolume ms = resample_nearest(m, g);
-        r.t1_path = dir / "t1.nii.gz";
-        r.mask_path = dir / "mask.nii.gz";
-        save_volume(t1s, r.t1_path);
-        save_mask(ms, r.mask_path);
-        r.t1_bytes = read_bytes(r.t1_path);
-        r.mask_bytes = read_bytes(r.mask_path);
+        Head2mm h = head_2mm(dir);
+        Volume& t1s = h.t1;
+        LabelVolume& ms = h.mask;
+        r.t1_path = h.t1_path;
+        r.mask_path = h.mask_path;
+        r.t1_bytes = h.t1_bytes;
+        r.mask_bytes = h.mask_bytes;
         // The same voxels with the origin moved: the head sits 30 mm further along +x.
         t1s.geom.origin_mm.x() += kShiftXmm;
         ms.geom.origin_mm.x() += kShiftXmm;
@@ -79,93 +94,21 @@ const Data& data() {
     return d;
 }
 
-json test_config(const fs::path& state) {
-    json c = default_config_json();
-    c["http"]["listen"] = "127.0.0.1:0";
-    c["state_dir"] = state.string();
-    c["store"]["max_upload_bytes"] = 16 << 20;
-    c["renderer"]["kind"] = "auto";
-    c["tracker"]["enabled"] = false;
-    c["camera"]["backend"] = "none";
-    c["jobs"]["phantom_cases_at_start"] = 0;
-    c["jobs"]["progress_hz"] = 50;
-    return c;
-}
-
-int port() {
-    if (!g_daemon) {
-        g_state = fs::temp_directory_path() / ("cf_daemon_case_render_" + std::to_string(::getpid()));
-        fs::create_directories(g_state);
-        ::setenv("LP_NUM_THREADS", "2", 0);
-        json c = test_config(g_state);
-        c["data"]["t1"] = data().t1_path.string();
-        c["data"]["brain_mask"] = data().mask_path.string();
-        g_daemon = std::make_unique<Daemon>(parse_config(c, "test"));
-        g_daemon->start();
-    }
-    return g_daemon->port();
-}
-
-class Env : public ::testing::Environment {
-public:
-    void TearDown() override {
-        set_plan_store_hook_for_tests({});
-        if (!g_daemon) return;
-        EXPECT_TRUE(g_daemon->stop());
-        g_daemon.reset();
-        fs::remove_all(g_state);
-    }
-};
-const auto* const g_env = ::testing::AddGlobalTestEnvironment(new Env);
-
-struct Reply {
-    int status = 0;
-    std::string body;
-    json j;
-    httplib::Headers headers;
-};
-
+int port() { return g_d.port(); }
 Reply request(const std::string& method, const std::string& path, const std::string& body = "", const std::string& mime = "application/json") {
-    httplib::Client c("127.0.0.1", port());
-    c.set_read_timeout(180, 0);
-    httplib::Result r = method == "GET" ? c.Get(path.c_str()) : c.Post(path.c_str(), body, mime.c_str());
-    Reply out;
-    if (!r) return out;
-    out.status = r->status;
-    out.body = r->body;
-    out.headers = r->headers;
-    out.j = json::parse(r->body, nullptr, false);
-    return out;
+    return g_d.get().request(method, path, body, mime);
 }
-Reply get(const std::string& path) { return request("GET", path); }
-Reply post(const std::string& path, const json& body) { return request("POST", path, body.dump()); }
-Reply post_raw(const std::string& path, const std::string& bytes) { return request("POST", path, bytes, "application/octet-stream"); }
+Reply get(const std::string& path) { return g_d.get().get(path); }
+Reply post(const std::string& path, const json& body) { return g_d.get().post(path, body); }
+Reply post_raw(const std::string& path, const std::string& bytes) { return g_d.get().post_raw(path, bytes); }
 
-void wait_for_volume() {
-    for (int i = 0; i < 600; ++i) {
-        if (get("/api/render/volume").status == 200) return;
-        std::this_thread::sleep_for(std::chrono::milliseconds(100));
-    }
-    FAIL() << "the render volume did not load";
-}
+void wait_for_volume() { cf::daemon_test::wait_for_volume(g_d.get()); }
 
 json wait_job(std::uint64_t id, double timeout_s = 240) {
-    const auto t0 = std::chrono::steady_clock::now();
-    for (;;) {
-        const Reply r = get("/api/jobs/" + std::to_string(id));
-        if (r.status != 200) return r.j;
-        const std::string s = r.j.value("state", std::string());
-        if (s != "queued" && s != "running") return r.j;
-        if (std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count() > timeout_s) return r.j;
-        std::this_thread::sleep_for(std::chrono::milliseconds(50));
-    }
+    return poll_job([](const std::string& p) { return get(p); }, id, timeout_s);
 }
 
-std::int64_t new_case(const std::string& title) {
-    const Reply c = post("/api/cases", {{"title", title}});
-    EXPECT_EQ(c.status, 201) << c.body;
-    return c.j.value("id", std::int64_t{0});
-}
+std::int64_t new_case(const std::string& title) { return g_d.get().new_case(title); }
 std::int64_t upload(std::int64_t id, const std::string& name, const std::string& modality, const std::string& bytes) {
     const Reply r = post_raw("/api/cases/" + std::to_string(id) + "/volumes?name=" + name + "&modality=" + modality, bytes);
     EXPECT_EQ(r.status, 201) << r.body;
@@ -173,15 +116,6 @@ std::int64_t upload(std::int64_t id, const std::string& name, const std::string&
 }
 std::string base(std::int64_t id) { return "/api/cases/" + std::to_string(id); }
 
-cv::Mat decode(const Reply& r) {
-    return cv::imdecode(cv::Mat(1, int(r.body.size()), CV_8U, const_cast<char*>(r.body.data())), cv::IMREAD_COLOR);
-}
-double mean_abs_diff(const cv::Mat& a, const cv::Mat& b) {
-    cv::Mat d;
-    cv::absdiff(a, b, d);
-    const cv::Scalar m = cv::mean(d);
-    return (m[0] + m[1] + m[2]) / 3.0;
-}
 Eigen::Vector3d vec3(const json& a) { return {a[0].get<double>(), a[1].get<double>(), a[2].get<double>()}; }
 
 /// A 160x120 view from a pose (png: exact pixels).
@@ -571,19 +505,9 @@ TEST(CaseMultimodal, TheCpuRendererRefusesLayersNamingWhy) {
     json c = test_config(state);
     c["renderer"]["kind"] = "cpu";
     c["data"]["t1"] = data().t1_path.string();
-    Daemon d(parse_config(c, "test"));
-    d.start();
+    auto d = std::make_unique<TestDaemon>(state, c, 180);
     auto req = [&](const std::string& method, const std::string& path, const std::string& body, const std::string& mime) {
-        httplib::Client cl("127.0.0.1", d.port());
-        cl.set_read_timeout(180, 0);
-        auto r = method == "GET" ? cl.Get(path.c_str()) : cl.Post(path.c_str(), body, mime.c_str());
-        Reply out;
-        if (r) {
-            out.status = r->status;
-            out.body = r->body;
-            out.j = json::parse(r->body, nullptr, false);
-        }
-        return out;
+        return d->request(method, path, body, mime);
     };
     const std::int64_t id = req("POST", "/api/cases", json{{"title", "cpu"}}.dump(), "application/json").j.value("id", std::int64_t{0});
     for (const auto& [name, mod, bytes] : {std::tuple{"t1.nii.gz", "T1", &data().t1_bytes}, std::tuple{"mask.nii.gz", "mask", &data().mask_bytes},
@@ -604,7 +528,7 @@ TEST(CaseMultimodal, TheCpuRendererRefusesLayersNamingWhy) {
     EXPECT_NE(r.body.find("need the GL renderer"), std::string::npos) << r.body;
     b.erase("modalities");
     EXPECT_EQ(req("POST", "/api/render", b.dump(), "application/json").status, 200);
-    EXPECT_TRUE(d.stop());
+    d.reset();  // stopped, the stop expected to succeed
     fs::remove_all(state);
 }
 

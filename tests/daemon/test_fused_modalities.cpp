@@ -16,6 +16,8 @@
 #include "cortexfuse/daemon/daemon.hpp"
 #include "cortexfuse/db/case_store.hpp"
 
+#include "daemon_fixture.hpp"
+
 #include <gtest/gtest.h>
 #include <httplib.h>
 #include <unistd.h>
@@ -36,41 +38,15 @@ namespace {
 
 fs::path g_root;  // every daemon's state lives under it (removed at the end)
 
+using namespace cf::daemon_test;
+
 json test_config(const fs::path& state, const std::string& renderer) {
-    json c = default_config_json();
-    c["http"]["listen"] = "127.0.0.1:0";
-    c["state_dir"] = state.string();
+    json c = base_test_config(state, renderer);
     c["store"]["max_upload_bytes"] = 16 << 20;
-    c["renderer"]["kind"] = renderer;
     c["tracker"]["enabled"] = false;
     c["camera"]["backend"] = "none";
-    c["jobs"]["phantom_cases_at_start"] = 0;
     c["jobs"]["progress_hz"] = 50;
     return c;
-}
-
-struct Reply {
-    int status = 0;
-    std::string body;
-    json j;
-    httplib::Headers headers;
-};
-
-std::string read_bytes(const fs::path& p) {
-    std::ifstream in(p, std::ios::binary);
-    return std::string(std::istreambuf_iterator<char>(in), {});
-}
-std::string url_encode(const std::string& s) {
-    std::string o;
-    char buf[4];
-    for (unsigned char c : s) {
-        if (std::isalnum(c) || c == '-' || c == '_' || c == '.' || c == '~') o += char(c);
-        else {
-            std::snprintf(buf, sizeof buf, "%%%02X", c);
-            o += buf;
-        }
-    }
-    return o;
 }
 
 /// The phantom: the 2 mm head, its photo and ROI from the true pose, and an fMRI map on the T1's
@@ -85,30 +61,14 @@ const World& world() {
     static const World w = [] {
         World r;
         const fs::path dir = g_root / "src";
-        fs::create_directories(dir);
-        const Volume t1 = load_volume(fs::path(CF_DATA_DIR) / "t1_head_mne_ecog.nii.gz");
-        const LabelVolume m = load_mask(fs::path(CF_DATA_DIR) / "brainmask_mne_ecog_binary.nii.gz");
-        const VolumeGeometry g = isotropic_grid(t1.geom, 2.0);
-        const Volume t1s = resample(t1, g);
-        const LabelVolume ms = resample_nearest(m, g);
-        save_volume(t1s, dir / "t1.nii.gz");
-        save_mask(ms, dir / "mask.nii.gz");
-        r.t1_bytes = read_bytes(dir / "t1.nii.gz");
-        r.mask_bytes = read_bytes(dir / "mask.nii.gz");
-        const PhantomSurface surf = build_phantom_surface(t1s, ms);
-        PhantomParams p;
-        p.seed = 11;
-        p.width = 320;
-        p.height = 240;
-        p.vary_size = false;
-        p.dslr_fraction = 0;
-        p.distortion_prob = 0;
-        p.gauze_prob = 0;
-        p.blood_prob = 0;
-        r.pc = generate_phantom_case(surf, p, 0);
-        std::vector<uchar> buf;
-        cv::imencode(".png", r.pc.photo_bgr, buf);
-        r.photo_png.assign(buf.begin(), buf.end());
+        const Head2mm h = head_2mm(dir);
+        const Volume& t1s = h.t1;
+        const LabelVolume& ms = h.mask;
+        const VolumeGeometry& g = t1s.geom;
+        r.t1_bytes = h.t1_bytes;
+        r.mask_bytes = h.mask_bytes;
+        r.pc = generate_phantom_case(build_phantom_surface(t1s, ms), plain_phantom_params(), 0);
+        r.photo_png = png_bytes(r.pc.photo_bgr);
         // The first brain voxel along the ray of the ROI's centre.
         Eigen::Vector2d c(0, 0);
         for (const auto& q : r.pc.roi_points) c += q;
@@ -138,41 +98,9 @@ const World& world() {
     return w;
 }
 
-json camera_json(const Intrinsics& K) {
-    return {{"width", K.width}, {"height", K.height}, {"fx", K.fx}, {"fy", K.fy}, {"cx", K.cx}, {"cy", K.cy},
-            {"distortion", {K.distortion[0], K.distortion[1], K.distortion[2], K.distortion[3], K.distortion[4]}}};
-}
-
-/// A daemon with its own state folder, and the HTTP calls to it.
-struct Server {
-    fs::path state;
-    std::unique_ptr<Daemon> d;
-    explicit Server(const std::string& renderer) {
-        state = g_root / renderer;
-        fs::create_directories(state);
-        d = std::make_unique<Daemon>(parse_config(test_config(state, renderer), "test"));
-        d->start();
-    }
-    ~Server() {
-        if (d) {
-            EXPECT_TRUE(d->stop());
-        }
-    }
-    Reply request(const std::string& method, const std::string& path, const std::string& body = "", const std::string& mime = "application/json") const {
-        httplib::Client c("127.0.0.1", d->port());
-        c.set_read_timeout(240, 0);
-        httplib::Result r = method == "GET" ? c.Get(path.c_str()) : c.Post(path.c_str(), body, mime.c_str());
-        Reply out;
-        if (!r) return out;
-        out.status = r->status;
-        out.body = r->body;
-        out.headers = r->headers;
-        out.j = json::parse(r->body, nullptr, false);
-        return out;
-    }
-    Reply get(const std::string& p) const { return request("GET", p); }
-    Reply post(const std::string& p, const json& b) const { return request("POST", p, b.dump()); }
-    Reply post_raw(const std::string& p, const std::string& bytes) const { return request("POST", p, bytes, "application/octet-stream"); }
+/// A daemon with its own state folder (g_root/<renderer>), and the HTTP calls to it.
+struct Server : TestDaemon {
+    explicit Server(const std::string& renderer) : TestDaemon(g_root / renderer, test_config(g_root / renderer, renderer), 240) {}
 
     /// A case with the phantom's T1, mask, photo, ROI and (when asked) fMRI map, planned by the
     /// plan job, registered with the phantom's true pose. Returns its id (0 on failure).
@@ -207,12 +135,7 @@ struct Server {
         if (s != "succeeded") return 0;
         // The registration: the phantom's true pose, stored as a run of the case (what a
         // register job stores), through a second connection to the store.
-        auto store = cf::db::CaseStore::open(state / "store");
-        cf::db::RegistrationInput in;
-        in.final_pose = json{{"T_camera_from_world", pose_to_json(w.pc.T_camera_from_world)}};
-        in.initial_pose = in.final_pose;
-        in.nmi = 1.2;
-        store->add_registration(id, in, cf::db::Actor{"test", std::nullopt});
+        store_registration(state() / "store", id, w.pc.T_camera_from_world);
         return id;
     }
 };
@@ -240,15 +163,6 @@ public:
 };
 const auto* const g_env = ::testing::AddGlobalTestEnvironment(new Env);
 
-cv::Mat decode(const Reply& r) {
-    return cv::imdecode(cv::Mat(1, int(r.body.size()), CV_8U, const_cast<char*>(r.body.data())), cv::IMREAD_COLOR);
-}
-double mean_abs_diff(const cv::Mat& a, const cv::Mat& b) {
-    cv::Mat d;
-    cv::absdiff(a, b, d);
-    const cv::Scalar m = cv::mean(d);
-    return (m[0] + m[1] + m[2]) / 3.0;
-}
 
 /// The fused request from the registered camera (png: exact pixels) with these layers; a clear
 /// green fMRI look so that the blob stands out from the photo and the cortex.
@@ -352,7 +266,7 @@ TEST(FusedModalities, BadModalitiesAreRefusedNamingThemAndNothingIsStored) {
     ASSERT_GT(g_case, 0);
     const json before_case = s.get(base()).j;
     const json before_regs = s.get(base() + "/registrations").j;
-    const std::size_t before_files = files_under(s.state / "store");
+    const std::size_t before_files = files_under(s.state() / "store");
     // A modality the plan lacks: 409 naming it.
     json no_ct = fused_body(true, 1.0);
     no_ct["modalities"].push_back({{"name", "ct"}});
@@ -390,7 +304,7 @@ TEST(FusedModalities, BadModalitiesAreRefusedNamingThemAndNothingIsStored) {
     EXPECT_EQ(after_case.value("volumes", json()), bc.value("volumes", json()));
     EXPECT_EQ(after_case.value("photos", json()), bc.value("photos", json()));
     EXPECT_EQ(s.get(base() + "/registrations").j, before_regs);
-    EXPECT_EQ(files_under(s.state / "store"), before_files) << "no blob written by a render";
+    EXPECT_EQ(files_under(s.state() / "store"), before_files) << "no blob written by a render";
 }
 
 // A daemon with the CPU ray caster: the fused view with layers is refused naming the reason

@@ -11,6 +11,8 @@
 #include "cortexfuse/daemon/config.hpp"
 #include "cortexfuse/daemon/daemon.hpp"
 
+#include "daemon_fixture.hpp"
+
 #include <gtest/gtest.h>
 #include <httplib.h>
 #include <unistd.h>
@@ -30,75 +32,28 @@ namespace fs = std::filesystem;
 
 namespace {
 
-fs::path g_state;
-std::unique_ptr<Daemon> g_daemon;
+using namespace cf::daemon_test;
 
-int port() {
-    if (!g_daemon) {
-        g_state = fs::temp_directory_path() / ("cf_daemon_nav_" + std::to_string(::getpid()));
-        json c = default_config_json();
-        c["http"]["listen"] = "127.0.0.1:0";
-        c["state_dir"] = g_state.string();
-        c["renderer"]["kind"] = "cpu";
-        c["jobs"]["phantom_cases_at_start"] = 0;
+SharedDaemon& g_d = add_shared_daemon(
+    "cf_daemon_nav",
+    [](const fs::path& state) {
+        json c = base_test_config(state, "cpu");
         c["tracker"]["sim_link"] = "tcp";  // holds its rate on the loaded test machine (docs/daemon.md)
-        g_daemon = std::make_unique<Daemon>(parse_config(c, "test"));
-        g_daemon->start();
-    }
-    return g_daemon->port();
-}
-
-class Env : public ::testing::Environment {
-public:
-    void TearDown() override {
-        if (!g_daemon) return;
-        EXPECT_TRUE(g_daemon->stop());
-        g_daemon.reset();
-        fs::remove_all(g_state);
-    }
-};
-const auto* const g_env = ::testing::AddGlobalTestEnvironment(new Env);
-
-struct Reply {
-    int status = 0;
-    std::string body;
-    json j;
-    std::string content_type;
-};
+        return c;
+    },
+    60);
+const fs::path& g_state = g_d.state();
 
 Reply request(const std::string& method, const std::string& path, const std::string& body = "", const std::string& token = "") {
-    httplib::Client c("127.0.0.1", port());
-    c.set_read_timeout(60, 0);
-    httplib::Headers h;
-    if (!token.empty()) h.emplace("Authorization", "Bearer " + token);
-    httplib::Result r = method == "GET"      ? c.Get(path.c_str(), h)
-                        : method == "DELETE" ? c.Delete(path.c_str(), h)
-                                             : c.Post(path.c_str(), h, body, "application/json");
-    Reply out;
-    if (!r) return out;
-    out.status = r->status;
-    out.body = r->body;
-    out.content_type = r->get_header_value("Content-Type");
-    out.j = json::parse(r->body, nullptr, false);
-    return out;
+    return g_d.get().request(method, path, body, "application/json", token);
 }
-Reply get(const std::string& path, const std::string& token = "") { return request("GET", path, "", token); }
-Reply post(const std::string& path, const json& body, const std::string& token = "") { return request("POST", path, body.dump(), token); }
-Reply del(const std::string& path, const std::string& token = "") { return request("DELETE", path, "", token); }
+Reply get(const std::string& path, const std::string& token = "") { return g_d.get().get(path, token); }
+Reply post(const std::string& path, const json& body, const std::string& token = "") { return g_d.get().post(path, body, token); }
+Reply del(const std::string& path, const std::string& token = "") { return g_d.get().del(path, token); }
 
-std::int64_t new_case(const std::string& title) {
-    const Reply r = post("/api/cases", {{"title", title}});
-    EXPECT_EQ(r.status, 201) << r.body;
-    return r.j.value("id", std::int64_t{0});
-}
+std::int64_t new_case(const std::string& title) { return g_d.get().new_case(title); }
 
-std::string token_of(const std::string& name, const std::string& role) {
-    Reply r = post("/api/users", {{"name", name}, {"password", "long enough pw"}, {"role", role}});
-    EXPECT_TRUE(r.status == 201 || r.status == 409) << r.body;
-    r = post("/api/login", {{"name", name}, {"password", "long enough pw"}});
-    EXPECT_EQ(r.status, 200) << r.body;
-    return r.j.value("token", std::string());
-}
+std::string token_of(const std::string& name, const std::string& role) { return g_d.get().token_of(name, role); }
 
 Eigen::Vector3d v3(const json& a) { return {a[0].get<double>(), a[1].get<double>(), a[2].get<double>()}; }
 Eigen::Matrix4d m4(const json& a) {
@@ -424,13 +379,8 @@ TEST(Navigation, PivotCalibrationFindsTheTipAndTheRecordingsUseIt) {
         c["tracker"]["enabled"] = false;
         c["camera"]["backend"] = "none";
         c["jobs"]["phantom_cases_at_start"] = 0;
-        Daemon d2(parse_config(c, "test"));
-        d2.start();
-        httplib::Client cl("127.0.0.1", d2.port());
-        auto res = cl.Get("/api/navigation/pointer");
-        json j = res ? json::parse(res->body, nullptr, false) : json();
-        EXPECT_TRUE(d2.stop());
-        return j;
+        const TestDaemon d2(g_state / "restarted", c, 60);  // stopped when it goes (the stop expected to succeed)
+        return d2.get("/api/navigation/pointer").j;
     };
     json j = pointer_after_restart();
     ASSERT_TRUE(j.is_object()) << j.dump();

@@ -13,6 +13,8 @@
 #include "cortexfuse/daemon/daemon.hpp"
 #include "cortexfuse/db/case_store.hpp"
 
+#include "daemon_fixture.hpp"
+
 #include <gtest/gtest.h>
 #include <httplib.h>
 #include <unistd.h>
@@ -31,101 +33,34 @@ namespace fs = std::filesystem;
 
 namespace {
 
-fs::path g_state;
-std::unique_ptr<Daemon> g_daemon;
+using namespace cf::daemon_test;
 
 json test_config(const fs::path& state) {
-    json c = default_config_json();
-    c["http"]["listen"] = "127.0.0.1:0";
-    c["state_dir"] = state.string();
+    json c = base_test_config(state, "cpu");
     c["store"]["max_upload_bytes"] = 8 << 20;
-    c["renderer"]["kind"] = "cpu";
     c["tracker"]["enabled"] = false;
     c["camera"]["backend"] = "none";
-    c["jobs"]["phantom_cases_at_start"] = 0;
     c["jobs"]["progress_hz"] = 50;
     return c;
 }
 
-int port() {
-    if (!g_daemon) {
-        g_state = fs::temp_directory_path() / ("cf_daemon_render_jobs_" + std::to_string(::getpid()));
-        g_daemon = std::make_unique<Daemon>(parse_config(test_config(g_state), "test"));
-        g_daemon->start();
-    }
-    return g_daemon->port();
-}
+SharedDaemon& g_d = add_shared_daemon("cf_daemon_render_jobs", test_config);
+const fs::path& g_state = g_d.state();
 
-class Env : public ::testing::Environment {
-public:
-    void TearDown() override {
-        if (!g_daemon) return;
-        EXPECT_TRUE(g_daemon->stop());
-        g_daemon.reset();
-        fs::remove_all(g_state);
-    }
-};
-const auto* const g_env = ::testing::AddGlobalTestEnvironment(new Env);
-
-struct Reply {
-    int status = 0;
-    std::string body;
-    json j;
-};
-
+int port() { return g_d.port(); }
 Reply request(int p, const std::string& method, const std::string& path, const std::string& body = "",
               const std::string& mime = "application/json") {
-    httplib::Client c("127.0.0.1", p);
-    c.set_read_timeout(120, 0);
-    httplib::Result r = method == "GET" ? c.Get(path.c_str()) : c.Post(path.c_str(), body, mime.c_str());
-    Reply out;
-    if (!r) return out;
-    out.status = r->status;
-    out.body = r->body;
-    out.j = json::parse(r->body, nullptr, false);
-    return out;
+    return http_request(p, method, path, body, mime);
 }
-Reply get(const std::string& path) { return request(port(), "GET", path); }
-Reply post(const std::string& path, const json& body) { return request(port(), "POST", path, body.dump()); }
-Reply post_raw(const std::string& path, const std::string& bytes) { return request(port(), "POST", path, bytes, "application/octet-stream"); }
+Reply get(const std::string& path) { return g_d.get().get(path); }
+Reply post(const std::string& path, const json& body) { return g_d.get().post(path, body); }
+Reply post_raw(const std::string& path, const std::string& bytes) { return g_d.get().post_raw(path, bytes); }
 
-std::string read_bytes(const fs::path& p) {
-    std::ifstream in(p, std::ios::binary);
-    return std::string(std::istreambuf_iterator<char>(in), {});
-}
-std::string url_encode(const std::string& s) {
-    std::string o;
-    char buf[4];
-    for (unsigned char c : s) {
-        if (std::isalnum(c) || c == '-' || c == '_' || c == '.' || c == '~') o += char(c);
-        else {
-            std::snprintf(buf, sizeof buf, "%%%02X", c);
-            o += buf;
-        }
-    }
-    return o;
-}
-
-void wait_for_volume() {
-    for (int i = 0; i < 600; ++i) {
-        if (get("/api/render/volume").status == 200) return;
-        std::this_thread::sleep_for(std::chrono::milliseconds(100));
-    }
-    FAIL() << "the render volume did not load";
-}
+void wait_for_volume() { cf::daemon_test::wait_for_volume(g_d.get()); }
 
 /// Polls a job until it ends; `stages` collects the stages seen on the way.
 json wait_job(std::uint64_t id, std::set<std::string>* stages = nullptr, double timeout_s = 240) {
-    const auto t0 = std::chrono::steady_clock::now();
-    for (;;) {
-        const Reply r = get("/api/jobs/" + std::to_string(id));
-        if (r.status != 200) return r.j;
-        if (stages) stages->insert(r.j.value("stage", std::string()));
-        const std::string s = r.j.value("state", std::string());
-        if (s != "queued" && s != "running") return r.j;
-        if (std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count() > timeout_s) return r.j;
-        std::this_thread::sleep_for(std::chrono::milliseconds(50));
-    }
+    return poll_job([](const std::string& p) { return get(p); }, id, timeout_s, stages);
 }
 
 Eigen::Vector3d vec3(const json& a) { return {a[0].get<double>(), a[1].get<double>(), a[2].get<double>()}; }
@@ -284,38 +219,14 @@ const PhantomWorld& world() {
     static const PhantomWorld w = [] {
         PhantomWorld r;
         r.dir = g_state / "phantom_src";
-        fs::create_directories(r.dir);
-        const Volume t1 = load_volume(fs::path(CF_DATA_DIR) / "t1_head_mne_ecog.nii.gz");
-        const LabelVolume m = load_mask(fs::path(CF_DATA_DIR) / "brainmask_mne_ecog_binary.nii.gz");
-        const VolumeGeometry g = isotropic_grid(t1.geom, 2.0);
-        const Volume t1s = resample(t1, g);
-        const LabelVolume ms = resample_nearest(m, g);
-        save_volume(t1s, r.dir / "t1.nii.gz");
-        save_mask(ms, r.dir / "mask.nii.gz");
-        r.t1_bytes = read_bytes(r.dir / "t1.nii.gz");
-        r.mask_bytes = read_bytes(r.dir / "mask.nii.gz");
-        const PhantomSurface surf = build_phantom_surface(t1s, ms);
-        PhantomParams p;
-        p.seed = 11;
-        p.width = 320;
-        p.height = 240;
-        p.vary_size = false;
-        p.dslr_fraction = 0;
-        p.distortion_prob = 0;
-        p.gauze_prob = 0;
-        p.blood_prob = 0;
-        r.pc = generate_phantom_case(surf, p, 0);
-        std::vector<uchar> buf;
-        cv::imencode(".png", r.pc.photo_bgr, buf);
-        r.photo_png.assign(buf.begin(), buf.end());
+        const Head2mm h = head_2mm(r.dir);
+        r.t1_bytes = h.t1_bytes;
+        r.mask_bytes = h.mask_bytes;
+        r.pc = generate_phantom_case(build_phantom_surface(h.t1, h.mask), plain_phantom_params(), 0);
+        r.photo_png = png_bytes(r.pc.photo_bgr);
         return r;
     }();
     return w;
-}
-
-json camera_json(const Intrinsics& K) {
-    return {{"width", K.width}, {"height", K.height}, {"fx", K.fx}, {"fy", K.fy}, {"cx", K.cx}, {"cy", K.cy},
-            {"distortion", {K.distortion[0], K.distortion[1], K.distortion[2], K.distortion[3], K.distortion[4]}}};
 }
 
 /// A new case holding the phantom's T1 (+ mask, photo, ROI when asked).
@@ -523,14 +434,7 @@ TEST(FusedView, RoiPixelsShowThePhotoFromTheRegisteredCamera) {
     // The registration: the phantom's true pose, stored as a run of the case (what a register
     // job stores), through a second connection to the store.
     const PhantomWorld& w = world();
-    {
-        auto store = cf::db::CaseStore::open(g_state / "store");
-        cf::db::RegistrationInput in;
-        in.final_pose = json{{"T_camera_from_world", pose_to_json(w.pc.T_camera_from_world)}};
-        in.initial_pose = in.final_pose;
-        in.nmi = 1.2;
-        store->add_registration(id, in, cf::db::Actor{"test", std::nullopt});
-    }
+    store_registration(g_state / "store", id, w.pc.T_camera_from_world);
     // Snap to camera: the registered pose and the photo's camera.
     r = get(base + "/fused/camera");
     ASSERT_EQ(r.status, 200) << r.body;

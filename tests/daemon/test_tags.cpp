@@ -12,6 +12,8 @@
 #include "cortexfuse/daemon/daemon.hpp"
 #include "cortexfuse/db/case_store.hpp"
 
+#include "daemon_fixture.hpp"
+
 #include <gtest/gtest.h>
 #include <httplib.h>
 #include <unistd.h>
@@ -30,88 +32,27 @@ namespace fs = std::filesystem;
 
 namespace {
 
-fs::path g_state;
-std::unique_ptr<Daemon> g_daemon;
+using namespace cf::daemon_test;
 
-int port() {
-    if (!g_daemon) {
-        g_state = fs::temp_directory_path() / ("cf_daemon_tags_" + std::to_string(::getpid()));
-        json c = default_config_json();
-        c["http"]["listen"] = "127.0.0.1:0";
-        c["state_dir"] = g_state.string();
-        c["store"]["max_upload_bytes"] = 8 << 20;
-        c["renderer"]["kind"] = "cpu";
-        c["tracker"]["enabled"] = false;
-        c["camera"]["backend"] = "none";
-        c["jobs"]["phantom_cases_at_start"] = 0;
-        g_daemon = std::make_unique<Daemon>(parse_config(c, "test"));
-        g_daemon->start();
-    }
-    return g_daemon->port();
-}
+SharedDaemon& g_d = add_shared_daemon("cf_daemon_tags", [](const fs::path& state) {
+    json c = base_test_config(state, "cpu");
+    c["store"]["max_upload_bytes"] = 8 << 20;
+    c["tracker"]["enabled"] = false;
+    c["camera"]["backend"] = "none";
+    return c;
+});
+const fs::path& g_state = g_d.state();
 
-class Env : public ::testing::Environment {
-public:
-    void TearDown() override {
-        if (!g_daemon) return;
-        EXPECT_TRUE(g_daemon->stop());
-        g_daemon.reset();
-        fs::remove_all(g_state);
-    }
-};
-const auto* const g_env = ::testing::AddGlobalTestEnvironment(new Env);
-
-struct Reply {
-    int status = 0;
-    std::string body;
-    json j;
-};
-
+int port() { return g_d.port(); }
 Reply request(const std::string& method, const std::string& path, const std::string& body = "", const std::string& token = "",
               const std::string& mime = "application/json") {
-    httplib::Client c("127.0.0.1", port());
-    c.set_read_timeout(120, 0);
-    httplib::Headers h;
-    if (!token.empty()) h.emplace("Authorization", "Bearer " + token);
-    httplib::Result r = method == "GET" ? c.Get(path.c_str(), h) : c.Post(path.c_str(), h, body, mime.c_str());
-    Reply out;
-    if (!r) return out;
-    out.status = r->status;
-    out.body = r->body;
-    out.j = json::parse(r->body, nullptr, false);
-    return out;
+    return g_d.get().request(method, path, body, mime, token);
 }
-Reply get(const std::string& path, const std::string& token = "") { return request("GET", path, "", token); }
-Reply post(const std::string& path, const json& body, const std::string& token = "") { return request("POST", path, body.dump(), token); }
-Reply post_raw(const std::string& path, const std::string& bytes) { return request("POST", path, bytes, "", "application/octet-stream"); }
-
-std::string read_bytes(const fs::path& p) {
-    std::ifstream in(p, std::ios::binary);
-    return std::string(std::istreambuf_iterator<char>(in), {});
-}
-std::string url_encode(const std::string& s) {
-    std::string o;
-    char buf[4];
-    for (unsigned char c : s) {
-        if (std::isalnum(c) || c == '-' || c == '_' || c == '.' || c == '~') o += char(c);
-        else {
-            std::snprintf(buf, sizeof buf, "%%%02X", c);
-            o += buf;
-        }
-    }
-    return o;
-}
-
+Reply get(const std::string& path, const std::string& token = "") { return g_d.get().get(path, token); }
+Reply post(const std::string& path, const json& body, const std::string& token = "") { return g_d.get().post(path, body, token); }
+Reply post_raw(const std::string& path, const std::string& bytes) { return g_d.get().post_raw(path, bytes); }
 json wait_job(std::uint64_t id) {
-    const auto t0 = std::chrono::steady_clock::now();
-    for (;;) {
-        const Reply r = get("/api/jobs/" + std::to_string(id));
-        if (r.status != 200) return r.j;
-        const std::string s = r.j.value("state", std::string());
-        if (s != "queued" && s != "running") return r.j;
-        if (std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count() > 240) return r.j;
-        std::this_thread::sleep_for(std::chrono::milliseconds(50));
-    }
+    return poll_job([](const std::string& p) { return get(p); }, id);
 }
 
 struct PhantomWorld {
@@ -121,38 +62,14 @@ struct PhantomWorld {
 const PhantomWorld& world() {
     static const PhantomWorld w = [] {
         PhantomWorld r;
-        const fs::path dir = g_state / "phantom_src";
-        fs::create_directories(dir);
-        const Volume t1 = load_volume(fs::path(CF_DATA_DIR) / "t1_head_mne_ecog.nii.gz");
-        const LabelVolume m = load_mask(fs::path(CF_DATA_DIR) / "brainmask_mne_ecog_binary.nii.gz");
-        const VolumeGeometry g = isotropic_grid(t1.geom, 2.0);
-        const Volume t1s = resample(t1, g);
-        const LabelVolume ms = resample_nearest(m, g);
-        save_volume(t1s, dir / "t1.nii.gz");
-        save_mask(ms, dir / "mask.nii.gz");
-        r.t1_bytes = read_bytes(dir / "t1.nii.gz");
-        r.mask_bytes = read_bytes(dir / "mask.nii.gz");
-        PhantomParams p;
-        p.seed = 11;
-        p.width = 320;
-        p.height = 240;
-        p.vary_size = false;
-        p.dslr_fraction = 0;
-        p.distortion_prob = 0;
-        p.gauze_prob = 0;
-        p.blood_prob = 0;
-        r.pc = generate_phantom_case(build_phantom_surface(t1s, ms), p, 0);
-        std::vector<uchar> buf;
-        cv::imencode(".png", r.pc.photo_bgr, buf);
-        r.photo_png.assign(buf.begin(), buf.end());
+        const Head2mm h = head_2mm(g_state / "phantom_src");
+        r.t1_bytes = h.t1_bytes;
+        r.mask_bytes = h.mask_bytes;
+        r.pc = generate_phantom_case(build_phantom_surface(h.t1, h.mask), plain_phantom_params(), 0);
+        r.photo_png = png_bytes(r.pc.photo_bgr);
         return r;
     }();
     return w;
-}
-
-json camera_json(const Intrinsics& K) {
-    return {{"width", K.width}, {"height", K.height}, {"fx", K.fx}, {"fy", K.fy}, {"cx", K.cx}, {"cy", K.cy},
-            {"distortion", {K.distortion[0], K.distortion[1], K.distortion[2], K.distortion[3], K.distortion[4]}}};
 }
 
 /// A case with the phantom's T1, mask and photo (no plan, no registration yet).
@@ -177,21 +94,10 @@ void plan_and_register_with_truth(std::int64_t id) {
     ASSERT_EQ(done.value("state", std::string()), "succeeded") << done.dump();
     // The registration: the phantom's true pose, stored as a run of the case (what a register
     // job stores), through a second connection to the store.
-    auto store = cf::db::CaseStore::open(g_state / "store");
-    cf::db::RegistrationInput in;
-    in.final_pose = json{{"T_camera_from_world", pose_to_json(world().pc.T_camera_from_world)}};
-    in.initial_pose = in.final_pose;
-    in.nmi = 1.2;
-    store->add_registration(id, in, cf::db::Actor{"test", std::nullopt});
+    store_registration(g_state / "store", id, world().pc.T_camera_from_world);
 }
 
-std::string token_of(const std::string& name, const std::string& role) {
-    Reply r = post("/api/users", {{"name", name}, {"password", "long enough pw"}, {"role", role}});
-    EXPECT_TRUE(r.status == 201 || r.status == 409) << r.body;
-    r = post("/api/login", {{"name", name}, {"password", "long enough pw"}});
-    EXPECT_EQ(r.status, 200) << r.body;
-    return r.j.value("token", std::string());
-}
+std::string token_of(const std::string& name, const std::string& role) { return g_d.get().token_of(name, role); }
 
 /// What the store holds about a case, minus reads (views and downloads are audited too).
 json snapshot(std::int64_t id) {
