@@ -247,3 +247,44 @@ TEST(TransferFunction, LoadingABadFileNamesTheFile) {
     expect_input_error([&] { load_transfer_function(unsorted); }, unsorted.string(), "sorted");
     fs::remove_all(dir);
 }
+
+namespace {
+/// 30^3 voxels: every 7th is 0 (background), the others cycle through 101..1100.
+Volume uniform_volume() {
+    Volume v;
+    v.geom.dims = {30, 30, 30};
+    v.voxels.resize(v.geom.voxel_count());
+    for (size_t i = 0; i < v.voxels.size(); ++i) v.voxels[i] = i % 7 == 0 ? 0.f : float(101 + i % 1000);
+    return v;
+}
+}  // namespace
+
+TEST(TransferFunction, RobustRangeTopIsThe995thPercentileOfNonZeroVoxels) {
+    const Volume v = uniform_volume();
+    const auto r = robust_range(v);
+    EXPECT_NEAR(r[1], 101 + 0.995 * 999, 6);
+    EXPECT_LE(r[0], 101 + 0.01 * 999 + 6);  // at most the 1st percentile (see the DISABLED test below)
+    // Only inside a mask.
+    LabelVolume m;
+    m.geom = v.geom;
+    m.voxels.resize(v.voxels.size());
+    for (size_t i = 0; i < m.voxels.size(); ++i) m.voxels[i] = v.voxels[i] < 501.f;
+    EXPECT_NEAR(robust_range(v, &m)[1], 101 + 0.995 * 399, 6);
+    // Negative values (CT): the bottom follows the data.
+    Volume ct = v;
+    for (auto& x : ct.voxels)
+        if (x != 0.f) x -= 1100.f;  // -999..0
+    EXPECT_NEAR(robust_range(ct)[0], -999 + 0.01 * 999, 6);
+    // Almost nothing non-zero: the unit range.
+    Volume empty = v;
+    std::fill(empty.voxels.begin(), empty.voxels.end(), 0.f);
+    EXPECT_EQ(robust_range(empty), (std::array<double, 2>{0.0, 1.0}));
+}
+
+// DOC MISMATCH (reported to the lead): transfer_function.hpp says normalized control points
+// span "1st..99.5th percentile of non-zero voxels", but robust_range() returns
+// min(0, 1st percentile) as the bottom, i.e. 0 for any all-positive MRI. The presets were
+// tuned against the code, so the header comment is probably what should change.
+TEST(TransferFunction, DISABLED_RobustRangeBottomIsThe1stPercentileOfNonZeroVoxels) {
+    EXPECT_NEAR(robust_range(uniform_volume())[0], 101 + 0.01 * 999, 6);
+}
