@@ -4,6 +4,7 @@
 #include <iostream>
 #include <memory>
 
+#include "cortexfuse/core/install_paths.hpp"
 #include "commands.hpp"
 #include "cortexfuse/bench/bench.hpp"
 #include "cortexfuse/core/case.hpp"
@@ -24,9 +25,9 @@ void print(const nlohmann::json& j, bool json_out) {
 
 void add_bench(CLI::App& app) {
     struct Opts {
-        std::string volume = std::string(CF_DATA_DIR) + "/t1_head_mne_ecog.nii.gz";
+        std::string volume = cf::bundled_data_dir(CF_DATA_DIR).string() + "/t1_head_mne_ecog.nii.gz";
         std::string mask, size = "375x250", tf = "skin", renderer = "cpu", save_frame, case_dir, params_file, reference_file;
-        std::string phantom_mask = std::string(CF_DATA_DIR) + "/brainmask_mne_ecog_binary.nii.gz";
+        std::string phantom_mask = cf::bundled_data_dir(CF_DATA_DIR).string() + "/brainmask_mne_ecog_binary.nii.gz";
         int frames = 30, warmup = 5, threads = 0, bins = 64, repeat = 20, cases = 4;
         double sample_mm = 1.0;
         uint64_t seed = 1;

@@ -7,6 +7,7 @@
 #include <nlohmann/json.hpp>
 #include <opencv2/imgcodecs.hpp>
 
+#include "cortexfuse/core/install_paths.hpp"
 #include "commands.hpp"
 #include "cortexfuse/core/case.hpp"
 #include "cortexfuse/core/error.hpp"
@@ -74,8 +75,8 @@ void write_photo(const camera::Photo& p, const std::filesystem::path& out) {
 
 void add_camera(CLI::App& app) {
     auto o = std::make_shared<CameraOpts>();
-    o->sim.volume_path = std::string(CF_DATA_DIR) + "/t1_head_mne_ecog.nii.gz";
-    o->sim.mask_path = std::string(CF_DATA_DIR) + "/brainmask_mne_ecog_binary.nii.gz";
+    o->sim.volume_path = cf::bundled_data_dir(CF_DATA_DIR).string() + "/t1_head_mne_ecog.nii.gz";
+    o->sim.mask_path = cf::bundled_data_dir(CF_DATA_DIR).string() + "/brainmask_mne_ecog_binary.nii.gz";
     auto* cmd = app.add_subcommand("camera", "Cameras: list, capture, files, download (gphoto2, v4l2, sim)");
     cmd->require_subcommand(1);
     auto backend_opt = [o](CLI::App* c) {

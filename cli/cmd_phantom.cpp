@@ -6,6 +6,7 @@
 #include <iostream>
 #include <memory>
 
+#include "cortexfuse/core/install_paths.hpp"
 #include "commands.hpp"
 #include "cortexfuse/core/error.hpp"
 #include "cortexfuse/core/phantom.hpp"
@@ -29,8 +30,8 @@ bool parse_size(const std::string& s, int& w, int& h) {
 
 void add_phantom(CLI::App& app) {
     struct Opts {
-        std::string out, volume = std::string(CF_DATA_DIR) + "/t1_head_mne_ecog.nii.gz",
-                         mask = std::string(CF_DATA_DIR) + "/brainmask_mne_ecog_binary.nii.gz", size = "750x500",
+        std::string out, volume = cf::bundled_data_dir(CF_DATA_DIR).string() + "/t1_head_mne_ecog.nii.gz",
+                         mask = cf::bundled_data_dir(CF_DATA_DIR).string() + "/brainmask_mne_ecog_binary.nii.gz", size = "750x500",
                          dslr_size = "3000x2000";
         int n = 10;
         bool fixed_size = false, quiet = false;

@@ -7,6 +7,7 @@
 #include <set>
 #include <sstream>
 
+#include "cortexfuse/core/install_paths.hpp"
 #include "cortexfuse/drivers/tracker/transport.hpp"
 
 #ifndef CF_DATA_DIR
@@ -20,10 +21,9 @@ namespace cf::daemon {
 
 namespace {
 
-std::string data_dir() {
-    if (const char* e = std::getenv("CF_DATA_DIR"); e && *e) return e;
-    return CF_DATA_DIR;
-}
+/// $CF_DATA_DIR, else the installed layout's data beside the executable, else the build's
+/// (core/install_paths.hpp): an installed cortexfused run without --config finds its MRI.
+std::string data_dir() { return cf::bundled_data_dir(CF_DATA_DIR).string(); }
 
 std::string fmt_num(double v) {
     std::ostringstream s;
@@ -43,7 +43,7 @@ std::vector<OptionSpec> make_options() {
         {"http.nice", T::integer, 0, 19, {}, 0,
          "Nice value of the connection threads (and the WebSocket writers they start); above 0 the tracker's driver thread wins the CPU first (no measurable gain with the simulator over a pty: docs/performance.md)"},
         {"http.request_timeout_ms", T::integer, 100, 600000, {}, 30000, "Socket read/write timeout per request"},
-        {"http.ui_dir", T::string, 0, 0, {}, CF_UI_DIR, "Folder of the built web UI, served at / (a plain page says so when it has no index.html)"},
+        {"http.ui_dir", T::string, 0, 0, {}, cf::bundled_ui_dir(CF_UI_DIR).string(), "Folder of the built web UI, served at / (a plain page says so when it has no index.html)"},
         {"http.remote_requires_login", T::boolean, 0, 0, {}, true,
          "Requests from other hosts than loopback need a session for anything but /api/status (sessions arrive with the case store; until then they are refused with 401)"},
         {"push.default_tracker_hz", T::number, 0, 1000, {}, 30,

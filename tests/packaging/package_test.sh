@@ -4,10 +4,16 @@
 # default configuration (its /usr/share paths moved into the root, a temporary state folder, a
 # free port): GET /api/status must answer, the MRI must load from the installed data, and the
 # case store must be created on first start. Skips (77) without dpkg-deb, cpack, jq or curl.
-# Usage: package_test.sh BUILD_DIR CPACK
+# Then the installed cortexfuse and cortexfused find the bundled data from the installed layout
+# (<prefix>/share/cortexfuse/data beside <prefix>/bin), not the build tree: `cortexfuse phantom`
+# runs with its defaults from the scratch root with the source tree's data/ hidden (an empty
+# tmpfs over it in a private mount namespace, where unshare is allowed), and CF_DATA_DIR still
+# points elsewhere.
+# Usage: package_test.sh BUILD_DIR CPACK [SOURCE_DIR]
 set -euo pipefail
 build=$1
 cpack=${2:-cpack}
+src=${3:-}
 for t in dpkg-deb jq curl "$cpack"; do
     command -v "$t" >/dev/null || { echo "$t not installed: skipped"; exit 77; }
 done
@@ -96,4 +102,34 @@ rc=0
 wait "$pid" || rc=$?
 pid=
 [ "$rc" = 0 ] || fail "cortexfused exited $rc on SIGTERM"
+
+# 5. The installed binaries' data paths: the installed layout, not the build tree; CF_DATA_DIR wins.
+share=$root/usr/share/cortexfuse
+cli=$root/usr/bin/cortexfuse
+t1=$(env -u CF_DATA_DIR -u CF_UI_DIR "$root/usr/bin/cortexfused" --print-default-config | jq -r .data.t1)
+[ "$t1" = "$share/data/t1_head_mne_ecog.nii.gz" ] || fail "the installed cortexfused's default data.t1 is $t1, not the installed MRI"
+if [ -f "$share/ui/index.html" ]; then
+    ui=$(env -u CF_DATA_DIR -u CF_UI_DIR "$root/usr/bin/cortexfused" --print-default-config | jq -r .http.ui_dir)
+    [ "$ui" = "$share/ui" ] || fail "the installed cortexfused's default http.ui_dir is $ui, not the installed UI"
+fi
+t1=$(CF_DATA_DIR=/srv/elsewhere "$root/usr/bin/cortexfused" --print-default-config | jq -r .data.t1)
+[ "$t1" = /srv/elsewhere/t1_head_mne_ecog.nii.gz ] || fail "CF_DATA_DIR does not move the daemon's data.t1 ($t1)"
+env -u CF_DATA_DIR "$cli" phantom --help | grep -qF "$share/data/t1_head_mne_ecog.nii.gz" ||
+    fail "the installed cortexfuse's default --volume is not the installed MRI: $(env -u CF_DATA_DIR "$cli" phantom --help | grep -- --volume)"
+# `cortexfuse phantom` with its default volume and mask, the build tree's data/ out of reach.
+phantom_cmd=(env -u CF_DATA_DIR "$cli" phantom "$tmp/phantom" --n 1 --size 160x120 --fixed-size)
+if [ -n "$src" ] && [ -d "$src/data" ] && [ "$(id -u)" = 0 ] && unshare -m true 2>/dev/null; then
+    unshare -m sh -c 'mount -t tmpfs cf-hidden "$1" && [ ! -e "$1/t1_head_mne_ecog.nii.gz" ] && shift && exec "$@"' sh "$src/data" \
+        "${phantom_cmd[@]}" >"$tmp/phantom.log" 2>&1 || { cat "$tmp/phantom.log"; fail "installed cortexfuse phantom (build tree's data/ hidden)"; }
+    echo "cortexfuse phantom: ran with $src/data hidden"
+else
+    "${phantom_cmd[@]}" >"$tmp/phantom.log" 2>&1 || { cat "$tmp/phantom.log"; fail "installed cortexfuse phantom"; }
+    echo "cortexfuse phantom: ran (no private mount namespace here: the build tree's data/ stayed visible)"
+fi
+[ -s "$tmp/phantom/case_0000/case.json" ] || fail "installed cortexfuse phantom wrote no case_0000/case.json"
+# CF_DATA_DIR points the CLI elsewhere: a folder without the MRI is refused naming it.
+if CF_DATA_DIR="$tmp/no-data" "$cli" phantom "$tmp/phantom2" --n 1 >"$tmp/phantom2.log" 2>&1; then
+    fail "cortexfuse phantom succeeded with CF_DATA_DIR=$tmp/no-data"
+fi
+grep -qF "$tmp/no-data" "$tmp/phantom2.log" || { cat "$tmp/phantom2.log"; fail "the error does not name CF_DATA_DIR's folder"; }
 echo "ok"
