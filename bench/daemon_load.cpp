@@ -19,6 +19,8 @@
 #include <fcntl.h>
 #include <unistd.h>
 
+#include "daemon_process.hpp"
+
 #include <CLI/CLI.hpp>
 #include <algorithm>
 #include <atomic>
@@ -41,21 +43,11 @@ using Clock = std::chrono::steady_clock;
 
 namespace {
 
-std::string read_file(const fs::path& p) {
-    std::ifstream f(p);
-    std::stringstream s;
-    s << f.rdbuf();
-    return s.str();
-}
+using cf::bench::loadavg;
+using cf::bench::proc_status_kb;
+using cf::bench::read_file;
+using cf::bench::wait_exit;
 
-/// A field of /proc/<pid>/status in kB (VmHWM, VmRSS), -1 when absent.
-long proc_status_kb(pid_t pid, const std::string& field) {
-    std::ifstream f("/proc/" + std::to_string(pid) + "/status");
-    std::string line;
-    while (std::getline(f, line))
-        if (line.rfind(field + ":", 0) == 0) return std::atol(line.c_str() + field.size() + 1);
-    return -1;
-}
 
 /// utime + stime of a process in seconds (/proc/<pid>/stat fields 14 and 15).
 double proc_cpu_s(pid_t pid) {
@@ -75,12 +67,6 @@ double proc_cpu_s(pid_t pid) {
     return double(ut + st) / double(sysconf(_SC_CLK_TCK));
 }
 
-std::vector<double> loadavg() {
-    std::istringstream in(read_file("/proc/loadavg"));
-    std::vector<double> v(3, 0.0);
-    in >> v[0] >> v[1] >> v[2];
-    return v;
-}
 
 double percentile(const std::vector<double>& sorted, double p) {
     if (sorted.empty()) return 0;
@@ -170,17 +156,6 @@ pid_t start_daemon(const std::string& exe, const fs::path& dir, const std::vecto
     return pid;
 }
 
-int wait_exit(pid_t pid, double timeout_s) {
-    const auto end = Clock::now() + std::chrono::duration<double>(timeout_s);
-    while (Clock::now() < end) {
-        int st = 0;
-        if (waitpid(pid, &st, WNOHANG) == pid) return WIFEXITED(st) ? WEXITSTATUS(st) : 128 + WTERMSIG(st);
-        std::this_thread::sleep_for(std::chrono::milliseconds(20));
-    }
-    kill(pid, SIGKILL);
-    waitpid(pid, nullptr, 0);
-    return -1;
-}
 
 [[noreturn]] void fail(const std::string& what, pid_t pid, const fs::path& dir) {
     std::cerr << "daemon_load: " << what << "\n";
