@@ -6,7 +6,8 @@
 // function as a 4096-entry table, two bisection steps and a secant step to the first crossing
 // of the reference layer's surface level (depth and shading there), Lambert headlight shading from the central-
 // difference gradient, front-to-back compositing, early termination, and empty-space skipping
-// over 8^3 bricks. Image row v is framebuffer row v (no flip; read back row by row).
+// over 8^3 bricks (a distance map: the empty cube around a brick in one jump). Image row v is
+// framebuffer row v (no flip; read back row by row).
 // Weighted fusion of several layers: see cortexfuse/core/fusion.hpp.
 #ifndef NLAYERS
 #define NLAYERS 1
@@ -21,7 +22,7 @@ layout(location = 3) out uint o_coverage;
 
 layout(binding = 0) uniform sampler2D u_rays;              // unit camera-frame ray per pixel
 layout(binding = 1) uniform sampler3D u_vol[NLAYERS];      // R16 unorm: quantised value / 65535
-layout(binding = 5) uniform usampler3D u_bricks[NLAYERS];  // 1 where a brick can be visible
+layout(binding = 5) uniform usampler3D u_bricks[NLAYERS];  // per brick: Chebyshev distance in bricks to a visible one (0: visible)
 layout(binding = 9) uniform sampler2D u_lut;               // row l: layer l's rgb, opacity per mm
 layout(binding = 10) uniform sampler2D u_mesh_rgb;          // opaque geometry, drawn first
 layout(binding = 11) uniform sampler2D u_mesh_z;            // its camera-frame z (mm); 0: none
@@ -144,11 +145,13 @@ void main() {
                     if (t > lt1[l]) continue;
                     const vec3 p = o[l] + t * d[l];
                     const ivec3 b = ivec3(p) / BRICK;
-                    if (texelFetch(u_bricks[l], b, 0).r != 0u) { visible = true; break; }
+                    const int dist = int(texelFetch(u_bricks[l], b, 0).r);
+                    if (dist == 0) { visible = true; break; }
+                    // Leave the empty cube of bricks [b - (dist - 1), b + dist) around this one.
                     for (int a = 0; a < 3; ++a) {
                         const float da = d[l][a];
-                        if (da > 1e-12) t_exit = min(t_exit, t + (float((b[a] + 1) * BRICK) - p[a]) / da);
-                        else if (da < -1e-12) t_exit = min(t_exit, t + (float(b[a] * BRICK) - p[a]) / da);
+                        if (da > 1e-12) t_exit = min(t_exit, t + (float((b[a] + dist) * BRICK) - p[a]) / da);
+                        else if (da < -1e-12) t_exit = min(t_exit, t + (float((b[a] - dist + 1) * BRICK) - p[a]) / da);
                     }
                     t_exit = min(t_exit, lt1[l]);
                 }
@@ -216,6 +219,8 @@ void main() {
                         const vec3 gw = transpose(mat3(u_index_from_world[l])) * gi;
                         const float gn = length(gw);
                         if (grad_op) a *= gradient_factor(l, gn * u_grad_scale[l]);
+                        // Two-sided Lambert, |cos|, for the headlight and the distant light
+                        // alike (raycast_cpu.cpp: why).
                         if (u_shading) shade = u_ambient + u_diffuse * (gn > 1e-6 ? abs(dot(gw, u_directional ? u_light_world : dir_world)) / gn : 0.0);
                     }
                     const float a_step = (l == 0 && u_surface_only) || a >= 1.0 ? 1.0 : 1.0 - pow(1.0 - a, step);

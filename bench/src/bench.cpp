@@ -222,6 +222,7 @@ json run_render_bench(const RenderBenchConfig& c, const Progress* progress) {
     RenderOptions ro;
     ro.sample_distance_mm = c.sample_mm;
     ro.shading = c.shading;
+    ro.surface_only = c.surface_only;
     ro.threads = threads;
     RenderImage img;
     std::vector<double> ms;
@@ -263,6 +264,7 @@ json run_render_bench(const RenderBenchConfig& c, const Progress* progress) {
               {"size", size_string(c.width, c.height)},
               {"tf", c.tf},
               {"shading", c.shading},
+              {"surface_only", c.surface_only},
               {"sample_mm", c.sample_mm},
               {"threads", threads},
               {"frames", c.frames},

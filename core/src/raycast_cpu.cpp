@@ -25,10 +25,20 @@ static_assert((1 << kBrickShift) == kBrick);
 constexpr int kMaxBrickDistance = 31;   // cap of the brick distance map, in bricks
 constexpr int kSurfaceBisections = 2;  // before the secant step to the surface level (raycast.frag too)
 
-/// Chebyshev (L-infinity) distance in bricks from each brick to the nearest `visible` one,
-/// capped at `cap` (0 = visible). Separable: exact 1D transforms along x, then y, then z, each
-/// taking the max with the offset along that axis. Grids are ~32^3, so O(n^2) lines are fine.
-std::vector<uint8_t> chebyshev_distance(const std::vector<uint8_t>& visible, const std::array<int, 3>& n, int cap) {
+/// Cell bits are stored brick by brick: a brick's 8^3 cells are 512 bits, 8 words, one cache
+/// line, in (z, y, x) order inside it. A ray crosses a brick in a few steps and tests them all
+/// on the same line (in voxel order every step along y or z read another line of a 2 MB map;
+/// on the skin benchmark the gain was within the noise, 2026-11-23).
+constexpr int kWordsPerBrick = kBrick * kBrick * kBrick / 64;
+inline size_t cell_word(size_t brick, int k) { return brick * kWordsPerBrick + size_t(k & (kBrick - 1)); }
+inline uint64_t cell_mask(int i, int j) { return uint64_t(1) << (((j & (kBrick - 1)) << kBrickShift) | (i & (kBrick - 1))); }
+static_assert(kBrick * kBrick == 64, "one brick z-slice of cells is one 64-bit word");
+
+}  // namespace
+
+// Separable: exact 1D transforms along x, then y, then z, each taking the max with the offset
+// along that axis. Grids are ~32^3, so O(n^2) lines are fine.
+std::vector<uint8_t> brick_chebyshev_distance(const std::vector<uint8_t>& visible, const std::array<int, 3>& n, int cap) {
     const size_t total = visible.size();
     std::vector<int> d(total);
     for (size_t i = 0; i < total; ++i) d[i] = visible[i] ? 0 : cap;
@@ -56,6 +66,8 @@ std::vector<uint8_t> chebyshev_distance(const std::vector<uint8_t>& visible, con
     for (size_t i = 0; i < total; ++i) r[i] = uint8_t(std::min(d[i], cap));
     return r;
 }
+
+namespace {
 
 class CpuRenderer final : public Renderer {
 public:
@@ -131,7 +143,7 @@ public:
         std::vector<int> positive(kLutSize + 1, 0);  // positive[i]: entries < i with opacity > 0
         for (int i = 0; i < kLutSize; ++i) positive[size_t(i + 1)] = positive[size_t(i)] + (op[size_t(i)] > 0.f ? 1 : 0);
         const auto& d = geom_.dims;
-        cell_bits_.assign((geom_.voxel_count() + 63) / 64, 0);
+        cell_bits_.assign(brick_min_.size() * kWordsPerBrick, 0);
         tbb::parallel_for(0, nb_[2], [&](int bz) {
             for (int by = 0; by < nb_[1]; ++by)
                 for (int bx = 0; bx < nb_[0]; ++bx) {
@@ -143,17 +155,12 @@ public:
                             const uint16_t* p1 = p0 + d[0];
                             const uint16_t* p2 = p0 + size_t(d[0]) * d[1];
                             const uint16_t* p3 = p2 + d[0];
-                            // A brick row is 8 cells: at most 64-bit-aligned halves of words, and
-                            // rows of different bricks touch different words only when
-                            // d[0] % 64 == 0; otherwise bricks side by side may share a word, so
-                            // bits are set atomically.
+                            // The brick's words belong to this task alone (brick-major layout).
+                            const size_t brick = (size_t(bz) * nb_[1] + by) * nb_[0] + bx;
                             for (int i = bx * kBrick; i < std::min(d[0] - 1, (bx + 1) * kBrick); ++i) {
                                 const uint16_t mn = std::min({p0[i], p0[i + 1], p1[i], p1[i + 1], p2[i], p2[i + 1], p3[i], p3[i + 1]});
                                 const uint16_t mx = std::max({p0[i], p0[i + 1], p1[i], p1[i + 1], p2[i], p2[i + 1], p3[i], p3[i + 1]});
-                                if (positive[size_t(mx) + 1] - positive[mn] > 0) {
-                                    const size_t c = row + size_t(i);
-                                    __atomic_fetch_or(&cell_bits_[c >> 6], uint64_t(1) << (c & 63), __ATOMIC_RELAXED);
-                                }
+                                if (positive[size_t(mx) + 1] - positive[mn] > 0) cell_bits_[cell_word(brick, k)] |= cell_mask(i, j);
                             }
                         }
                 }
@@ -174,18 +181,53 @@ public:
         // bricks, and the ray jumps to where it leaves that cube. Near the brain that is one
         // brick, far from it many at once (a fixed two-level hierarchy of 8^3 and 32^3 voxels
         // cost 17 % more; a finer map over 4^3 blocks built from the cell bits gained nothing).
-        brick_distance_ = chebyshev_distance(brick_visible_, nb_, kMaxBrickDistance);
+        brick_distance_ = brick_chebyshev_distance(brick_visible_, nb_, kMaxBrickDistance);
         for (int a = 0; a < 3; ++a) {
             box_lo_[a] = hi[a] < 0 ? 0.f : float(std::max(0, lo[a] * kBrick - 1));
             box_hi_[a] = hi[a] < 0 ? -1.f : float(std::min(geom_.dims[a] - 1, (hi[a] + 1) * kBrick + 1)) - 1e-3f;
         }
         alpha_step_for_ = -1.0;
         iso_q_ = -1.f;
+        int iso_i = -1;
         for (int i = 0; i < kLutSize; ++i)
             if (baked_.rgba[size_t(i)][3] >= 0.5f) {
                 iso_q_ = float(i) - 0.5f;
+                iso_i = i;
                 break;
             }
+        // Surface-only rendering (registration) shows the first sample at or above the surface
+        // level, so its empty space is wider: every cell whose 8 corners all lie below the level
+        // (a trilinear sample there is below it too). Tissue under the opacity ramp but below
+        // the level (partial volume at the brain's edge, sulcal CSF) is stepped over instead of
+        // sampled; the pictures are the same bit for bit.
+        iso_cell_bits_.clear();
+        iso_brick_distance_.clear();
+        if (iso_i >= 0) {
+            std::vector<uint8_t> iso_visible(brick_max_.size(), 0);
+            for (size_t b = 0; b < brick_max_.size(); ++b) iso_visible[b] = brick_min_[b] <= brick_max_[b] && brick_max_[b] >= iso_i;
+            iso_brick_distance_ = brick_chebyshev_distance(iso_visible, nb_, kMaxBrickDistance);
+            iso_cell_bits_.assign(brick_min_.size() * kWordsPerBrick, 0);
+            const uint16_t level = uint16_t(iso_i);
+            tbb::parallel_for(0, nb_[2], [&](int bz) {
+                for (int by = 0; by < nb_[1]; ++by)
+                    for (int bx = 0; bx < nb_[0]; ++bx) {
+                        if (!iso_visible[(size_t(bz) * nb_[1] + by) * nb_[0] + bx]) continue;
+                        for (int k = bz * kBrick; k < std::min(d[2] - 1, (bz + 1) * kBrick); ++k)
+                            for (int j = by * kBrick; j < std::min(d[1] - 1, (by + 1) * kBrick); ++j) {
+                                const size_t row = geom_.linear(0, j, k);
+                                const uint16_t* p0 = q_.data() + row;
+                                const uint16_t* p1 = p0 + d[0];
+                                const uint16_t* p2 = p0 + size_t(d[0]) * d[1];
+                                const uint16_t* p3 = p2 + d[0];
+                                const size_t brick = (size_t(bz) * nb_[1] + by) * nb_[0] + bx;
+                                for (int i = bx * kBrick; i < std::min(d[0] - 1, (bx + 1) * kBrick); ++i) {
+                                    const uint16_t mx = std::max({p0[i], p0[i + 1], p1[i], p1[i + 1], p2[i], p2[i + 1], p3[i], p3[i + 1]});
+                                    if (mx >= level) iso_cell_bits_[cell_word(brick, k)] |= cell_mask(i, j);
+                                }
+                            }
+                    }
+            });
+        }
     }
 
     const char* name() const override { return "cpu"; }
@@ -225,6 +267,9 @@ public:
                              .cast<float>())
                             .normalized();
         f.cam_world = Tw.topRightCorner<3, 1>().cast<float>();
+        const bool iso_skip = opt.surface_only && !iso_cell_bits_.empty();
+        f.brick_distance = iso_skip ? iso_brick_distance_.data() : brick_distance_.data();
+        f.cell_bits = iso_skip ? iso_cell_bits_.data() : cell_bits_.data();
         const int w = K.width;
         // Square-ish tiles: neighbouring rays in both directions read the same bricks, which
         // a row strip of the same pixel count does not (fewer cache misses on a 32 MB volume).
@@ -255,6 +300,8 @@ private:
         float cam_t_z;
         bool directional_light;
         Eigen::Vector3f light_world;  // unit, scene towards the light (directional only)
+        const uint8_t* brick_distance;  // the empty-space maps this frame steps with (borrowed)
+        const uint64_t* cell_bits;
     };
 
     // Trilinear sample of the quantised volume at index-space p (must be inside [0, d-1)).
@@ -317,7 +364,8 @@ private:
                 const float x0 = o.x() + t * dir_index.x(), y0 = o.y() + t * dir_index.y(), z0 = o.z() + t * dir_index.z();
                 // Inside the box the coordinates are > -1, so int() is >= 0 and a shift divides.
                 const int bi[3] = {int(x0) >> kBrickShift, int(y0) >> kBrickShift, int(z0) >> kBrickShift};
-                const int dist = brick_distance_[(size_t(bi[2]) * unsigned(nb_[1]) + unsigned(bi[1])) * unsigned(nb_[0]) + unsigned(bi[0])];
+                const size_t brick = (size_t(bi[2]) * unsigned(nb_[1]) + unsigned(bi[1])) * unsigned(nb_[0]) + unsigned(bi[0]);
+                const int dist = f.brick_distance[brick];
                 if (dist) {
                     // Jump to where the ray leaves the empty cube of bricks [bi - (dist - 1),
                     // bi + dist) around this one, on the sample lattice.
@@ -332,8 +380,8 @@ private:
                     continue;
                 }
                 {
-                    const size_t c = (size_t(int(z0)) * size_t(geom_.dims[1]) + size_t(int(y0))) * size_t(geom_.dims[0]) + size_t(int(x0));
-                    if (!((cell_bits_[c >> 6] >> (c & 63)) & 1u)) {  // transparent cell: opacity 0 here
+                    const int ix = int(x0), iy = int(y0);
+                    if (!(f.cell_bits[cell_word(brick, int(z0))] & cell_mask(ix, iy))) {  // transparent cell (or below the surface level): nothing shown here
                         t += step;
                         continue;
                     }
@@ -384,6 +432,11 @@ private:
                         const float gn = gw.norm();
                         if (grad_op) a *= baked_.gradient_factor(gn * grad_scale_);
                         if (opt.shading) {
+                            // Two-sided Lambert, |cos|: the gradient's sign depends on the
+                            // transfer function (bright inside or outside). For the distant light
+                            // too: a one-sided max(0, n.L) with the normal turned to the camera
+                            // lost on the wide capture test and gained nothing on the seed
+                            // protocol (2026-11-23, docs/registration.md), so it stays two-sided.
                             const Eigen::Vector3f& light = f.directional_light ? f.light_world : dir_world;
                             const float lambert = gn > 1e-6f ? std::abs(gw.dot(light)) / gn : 0.f;
                             shade = float(opt.ambient) + float(opt.diffuse) * lambert;
@@ -427,8 +480,10 @@ private:
     std::array<int, 3> nb_{};
     std::vector<uint16_t> brick_min_, brick_max_;
     std::vector<uint8_t> brick_visible_;
-    std::vector<uint64_t> cell_bits_;  // per voxel cell (i, j, k) = floor of a sample: 1 if it may be opaque
+    std::vector<uint64_t> cell_bits_;  // per voxel cell (i, j, k) = floor of a sample: 1 if it may be opaque (brick-major)
     std::vector<uint8_t> brick_distance_;  // per brick: Chebyshev distance in bricks to a visible one (0: visible)
+    std::vector<uint64_t> iso_cell_bits_;      // as cell_bits_, for "may reach the surface level" (surface_only)
+    std::vector<uint8_t> iso_brick_distance_;  // as brick_distance_, to a brick reaching the surface level
     std::unique_ptr<tbb::task_arena> arena_;  // owned; made for arena_threads_ threads
     int arena_threads_ = 0;
     std::array<float, 3> box_lo_{}, box_hi_{};  // index-space box around all visible bricks

@@ -281,10 +281,8 @@ TEST(TransferFunction, RobustRangeTopIsThe995thPercentileOfNonZeroVoxels) {
     EXPECT_EQ(robust_range(empty), (std::array<double, 2>{0.0, 1.0}));
 }
 
-// DOC MISMATCH (reported to the lead): transfer_function.hpp says normalized control points
-// span "1st..99.5th percentile of non-zero voxels", but robust_range() returns
-// min(0, 1st percentile) as the bottom, i.e. 0 for any all-positive MRI. The presets were
-// tuned against the code, so the header comment is probably what should change.
-TEST(TransferFunction, DISABLED_RobustRangeBottomIsThe1stPercentileOfNonZeroVoxels) {
-    EXPECT_NEAR(robust_range(uniform_volume())[0], 101 + 0.01 * 999, 6);
+// The bottom of the range is min(0, 1st percentile): 0 for an all-positive MRI, so that the
+// presets' x = 0 is "no signal" on every scan (the header says so).
+TEST(TransferFunction, RobustRangeBottomIsZeroForAPositiveVolume) {
+    EXPECT_EQ(robust_range(uniform_volume())[0], 0.0);
 }

@@ -25,6 +25,7 @@ using namespace cf::gl;
 constexpr int kBrick = 8;       // as raycast_cpu.cpp and raycast.frag
 constexpr int kLutSize = 4096;  // quantised levels = table entries, as raycast_cpu.cpp
 constexpr int kMaxGradPts = 8;  // gradient-opacity points the shader takes per layer
+constexpr int kMaxBrickDistance = 31;  // cap of the brick distance map (raycast_cpu.cpp: the same)
 
 // The fragment shader with NLAYERS set: constant loop bounds let the compiler unroll the
 // per-layer loops (llvmpipe in particular).
@@ -462,10 +463,14 @@ private:
                 L.iso_q = float(i) - 0.5f;
                 break;
             }
+        // The shader reads each brick's Chebyshev distance to a visible one, as the CPU ray
+        // caster does, and crosses the empty cube around it in one jump: on llvmpipe every
+        // iteration of the search loop costs all lanes of a SIMD group.
+        const std::vector<uint8_t> distance = brick_chebyshev_distance(L.brick_visible, L.nb, kMaxBrickDistance);
         glBindTexture(GL_TEXTURE_3D, L.bricks.get());
         glPixelStorei(GL_UNPACK_ALIGNMENT, 1);
         glTexSubImage3D(GL_TEXTURE_3D, 0, 0, 0, 0, L.nb[0], L.nb[1], L.nb[2], GL_RED_INTEGER, GL_UNSIGNED_BYTE,
-                        L.brick_visible.data());
+                        distance.data());
         glBindTexture(GL_TEXTURE_2D, lut_.get());
         glTexSubImage2D(GL_TEXTURE_2D, 0, 0, layer, kLutSize, 1, GL_RGBA, GL_FLOAT, L.baked.rgba.data());
         check_gl("transfer function upload");

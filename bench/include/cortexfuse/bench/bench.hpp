@@ -77,6 +77,7 @@ struct RenderBenchConfig {
     int threads = 0;                      // 0: all cores
     double sample_mm = 1.0;
     bool shading = true;
+    bool surface_only = false;  // registration's mode: the first crossing of the surface level, opaque
     std::filesystem::path save_frame;     // PNG of the first timed frame, if set
 };
 /// Times `frames` renders (after `warmup`), one camera step each. Throws InputError on bad

@@ -22,6 +22,8 @@ struct RenderOptions {
     /// Where the Lambert light comes from: false = a headlight along each ray (the seed); true =
     /// a distant light from `light_direction_camera` (camera frame, pointing from the scene
     /// towards the light). Registration estimates it from the photo: the lamp is rarely at the lens.
+    /// Lambert is two-sided, |n.L|, for both: a surface facing away from the distant light is lit
+    /// as if it faced it (a one-sided term registered worse: docs/registration.md).
     bool directional_light = false;
     std::array<double, 3> light_direction_camera{0, 0, -1};
     /// Show only the first crossing of the transfer function's surface level (where opacity
@@ -59,5 +61,12 @@ public:
 /// everything outside it (skull-stripped rendering). Both are borrowed only during the call.
 std::unique_ptr<Renderer> make_cpu_renderer(const Volume& volume, const TransferFunction& tf,
                                             const LabelVolume* mask = nullptr);
+
+/// Empty-space map shared by the ray casters (CPU and GLSL): for each brick of a grid of
+/// `n_bricks` (x fastest), the Chebyshev (L-infinity) distance in bricks to the nearest brick
+/// with `visible` != 0, capped at `cap` (0 = visible). A ray in a brick at distance d crosses
+/// the empty cube of bricks [b - (d - 1), b + d) in one jump.
+std::vector<uint8_t> brick_chebyshev_distance(const std::vector<uint8_t>& visible, const std::array<int, 3>& n_bricks,
+                                              int cap);
 
 }  // namespace cf

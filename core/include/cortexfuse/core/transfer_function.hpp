@@ -13,8 +13,9 @@ namespace cf {
 
 struct TransferFunction {
     std::string name;
-    /// "normalized": control-point x in [0,1] over the volume's robust range (1st..99.5th
-    /// percentile of non-zero voxels), so one preset fits any MRI scaling. "absolute": x in
+    /// "normalized": control-point x in [0,1] over the volume's robust range (robust_range():
+    /// from min(0, 1st percentile) to the 99.5th percentile of non-zero voxels, so 0..p99.5 for
+    /// an MRI), so one preset fits any MRI scaling. "absolute": x in
     /// the volume's own units (e.g. CT Hounsfield units).
     bool normalized = true;
     std::vector<std::array<double, 4>> colour;   // x, r, g, b (0..1)
