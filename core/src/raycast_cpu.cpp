@@ -142,29 +142,7 @@ public:
         // transparent.)
         std::vector<int> positive(kLutSize + 1, 0);  // positive[i]: entries < i with opacity > 0
         for (int i = 0; i < kLutSize; ++i) positive[size_t(i + 1)] = positive[size_t(i)] + (op[size_t(i)] > 0.f ? 1 : 0);
-        const auto& d = geom_.dims;
-        cell_bits_.assign(brick_min_.size() * kWordsPerBrick, 0);
-        tbb::parallel_for(0, nb_[2], [&](int bz) {
-            for (int by = 0; by < nb_[1]; ++by)
-                for (int bx = 0; bx < nb_[0]; ++bx) {
-                    if (!brick_visible_[(size_t(bz) * nb_[1] + by) * nb_[0] + bx]) continue;
-                    for (int k = bz * kBrick; k < std::min(d[2] - 1, (bz + 1) * kBrick); ++k)
-                        for (int j = by * kBrick; j < std::min(d[1] - 1, (by + 1) * kBrick); ++j) {
-                            const size_t row = geom_.linear(0, j, k);
-                            const uint16_t* p0 = q_.data() + row;
-                            const uint16_t* p1 = p0 + d[0];
-                            const uint16_t* p2 = p0 + size_t(d[0]) * d[1];
-                            const uint16_t* p3 = p2 + d[0];
-                            // The brick's words belong to this task alone (brick-major layout).
-                            const size_t brick = (size_t(bz) * nb_[1] + by) * nb_[0] + bx;
-                            for (int i = bx * kBrick; i < std::min(d[0] - 1, (bx + 1) * kBrick); ++i) {
-                                const uint16_t mn = std::min({p0[i], p0[i + 1], p1[i], p1[i + 1], p2[i], p2[i + 1], p3[i], p3[i + 1]});
-                                const uint16_t mx = std::max({p0[i], p0[i + 1], p1[i], p1[i + 1], p2[i], p2[i + 1], p3[i], p3[i + 1]});
-                                if (positive[size_t(mx) + 1] - positive[mn] > 0) cell_bits_[cell_word(brick, k)] |= cell_mask(i, j);
-                            }
-                        }
-                }
-        });
+        cell_bits_ = cell_bits_where(brick_visible_, [&](uint16_t mn, uint16_t mx) { return positive[size_t(mx) + 1] - positive[mn] > 0; });
         // Gradient modulation in quantised units per voxel.
         grad_scale_ = float((hi_ - lo_) / (kLutSize - 1));
         // The box around everything visible: rays start there.
@@ -206,28 +184,38 @@ public:
             std::vector<uint8_t> iso_visible(brick_max_.size(), 0);
             for (size_t b = 0; b < brick_max_.size(); ++b) iso_visible[b] = brick_min_[b] <= brick_max_[b] && brick_max_[b] >= iso_i;
             iso_brick_distance_ = brick_chebyshev_distance(iso_visible, nb_, kMaxBrickDistance);
-            iso_cell_bits_.assign(brick_min_.size() * kWordsPerBrick, 0);
             const uint16_t level = uint16_t(iso_i);
-            tbb::parallel_for(0, nb_[2], [&](int bz) {
-                for (int by = 0; by < nb_[1]; ++by)
-                    for (int bx = 0; bx < nb_[0]; ++bx) {
-                        if (!iso_visible[(size_t(bz) * nb_[1] + by) * nb_[0] + bx]) continue;
-                        for (int k = bz * kBrick; k < std::min(d[2] - 1, (bz + 1) * kBrick); ++k)
-                            for (int j = by * kBrick; j < std::min(d[1] - 1, (by + 1) * kBrick); ++j) {
-                                const size_t row = geom_.linear(0, j, k);
-                                const uint16_t* p0 = q_.data() + row;
-                                const uint16_t* p1 = p0 + d[0];
-                                const uint16_t* p2 = p0 + size_t(d[0]) * d[1];
-                                const uint16_t* p3 = p2 + d[0];
-                                const size_t brick = (size_t(bz) * nb_[1] + by) * nb_[0] + bx;
-                                for (int i = bx * kBrick; i < std::min(d[0] - 1, (bx + 1) * kBrick); ++i) {
-                                    const uint16_t mx = std::max({p0[i], p0[i + 1], p1[i], p1[i + 1], p2[i], p2[i + 1], p3[i], p3[i + 1]});
-                                    if (mx >= level) iso_cell_bits_[cell_word(brick, k)] |= cell_mask(i, j);
-                                }
-                            }
-                    }
-            });
+            iso_cell_bits_ = cell_bits_where(iso_visible, [&](uint16_t, uint16_t mx) { return mx >= level; });
         }
+    }
+
+    /// One bit per trilinear cell (brick-major) inside the bricks marked in `bricks`: set where
+    /// `may_show(min, max)` of the cell's 8 corner values says a sample there can show.
+    template <class MayShow>
+    std::vector<uint64_t> cell_bits_where(const std::vector<uint8_t>& bricks, MayShow may_show) const {
+        const auto& d = geom_.dims;
+        std::vector<uint64_t> bits(brick_min_.size() * kWordsPerBrick, 0);
+        tbb::parallel_for(0, nb_[2], [&](int bz) {
+            for (int by = 0; by < nb_[1]; ++by)
+                for (int bx = 0; bx < nb_[0]; ++bx) {
+                    const size_t brick = (size_t(bz) * nb_[1] + by) * nb_[0] + bx;
+                    if (!bricks[brick]) continue;
+                    for (int k = bz * kBrick; k < std::min(d[2] - 1, (bz + 1) * kBrick); ++k)
+                        for (int j = by * kBrick; j < std::min(d[1] - 1, (by + 1) * kBrick); ++j) {
+                            const uint16_t* p0 = q_.data() + geom_.linear(0, j, k);
+                            const uint16_t* p1 = p0 + d[0];
+                            const uint16_t* p2 = p0 + size_t(d[0]) * d[1];
+                            const uint16_t* p3 = p2 + d[0];
+                            // The brick's words belong to this task alone (brick-major layout).
+                            for (int i = bx * kBrick; i < std::min(d[0] - 1, (bx + 1) * kBrick); ++i) {
+                                const uint16_t mn = std::min({p0[i], p0[i + 1], p1[i], p1[i + 1], p2[i], p2[i + 1], p3[i], p3[i + 1]});
+                                const uint16_t mx = std::max({p0[i], p0[i + 1], p1[i], p1[i + 1], p2[i], p2[i + 1], p3[i], p3[i + 1]});
+                                if (may_show(mn, mx)) bits[cell_word(brick, k)] |= cell_mask(i, j);
+                            }
+                        }
+                }
+        });
+        return bits;
     }
 
     const char* name() const override { return "cpu"; }
