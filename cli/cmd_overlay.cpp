@@ -24,36 +24,6 @@ namespace fs = std::filesystem;
 
 namespace cf::cli {
 
-namespace {
-
-/// The craniotomy in a plan's CT: voxels that the camera sees inside the ROI, from the lens
-/// down to 3 mm below the brain surface, are hidden (the bone flap is off in the photo), so
-/// the photo's cortex is not covered by the skull from the camera's pose. 1 = shown.
-LabelVolume craniotomy_mask(const VolumeGeometry& g, const SurfaceMesh& mesh, const Intrinsics& K, const Pose& T,
-                            const cv::Mat& roi_alpha) {
-    const RasterBuffers zb = rasterize(mesh.raster(), K, T);
-    LabelVolume m;
-    m.geom = g;
-    m.voxels.assign(g.voxel_count(), 1);
-    const Eigen::Affine3d cam_from_index = Eigen::Affine3d(T.matrix()) * g.world_from_index();
-    for (int k = 0; k < g.dims[2]; ++k)
-        for (int j = 0; j < g.dims[1]; ++j)
-            for (int i = 0; i < g.dims[0]; ++i) {
-                const Eigen::Vector3d pc = cam_from_index * Eigen::Vector3d(i, j, k);
-                if (pc.z() <= 1.0) continue;
-                const auto px = project_camera(K, pc);
-                if (!px) continue;
-                const int u = int(std::lround(px->x())), v = int(std::lround(px->y()));
-                if (u < 0 || v < 0 || u >= zb.width || v >= zb.height) continue;
-                if (!roi_alpha.empty() && roi_alpha.at<uint8_t>(v, u) < 128) continue;
-                const float z = zb.depth_mm[zb.index(u, v)];
-                if (std::isfinite(z) && pc.z() < z + 3.0) m.voxels[g.linear(i, j, k)] = 0;
-            }
-    return m;
-}
-
-}  // namespace
-
 void add_overlay(CLI::App& app) {
     struct Opts {
         std::string case_dir, result, out, mesh, tf = "cortex_t1", plan, renderer = "auto";
@@ -174,7 +144,7 @@ void add_overlay(CLI::App& app) {
                     fr->add_layer(vol, tf, &mask);
                     for (const auto& L : extra) {
                         LabelVolume keep;
-                        if (L.name == "ct") keep = craniotomy_mask(L.volume.geom, mesh, K, T, alpha);
+                        if (L.name == "ct") keep = craniotomy_keep_mask(L.volume.geom, mesh, K, T, alpha, 3.0);
                         LayerSettings ls;
                         ls.weight = L.weight;
                         fr->add_layer(L.volume, L.tf, L.name == "ct" ? &keep : nullptr, ls);

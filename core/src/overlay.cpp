@@ -184,6 +184,36 @@ std::optional<SurfaceHit> cast_back(const SurfaceMesh& mesh, const Intrinsics& K
     return hit;
 }
 
+LabelVolume craniotomy_keep_mask(const VolumeGeometry& g, const SurfaceMesh& mesh, const Intrinsics& K,
+                                 const Pose& T, const cv::Mat& roi_alpha, double depth_margin_mm) {
+    mesh.validate("brain surface");
+    K.validate("camera");
+    if (!is_rigid(T)) throw InputError("pose", "T_camera_from_world is not a rigid transform");
+    if (!roi_alpha.empty() && (roi_alpha.type() != CV_8UC1 || roi_alpha.cols != K.width || roi_alpha.rows != K.height))
+        throw InputError("roi", "alpha mask must be 8-bit and of the photo's size");
+    if (!(depth_margin_mm >= 0 && depth_margin_mm <= 50)) throw InputError("craniotomy depth margin", "out of range 0..50 mm");
+    if (g.voxel_count() == 0) throw InputError("CT grid", "has no voxels");
+    const RasterBuffers zb = rasterize(mesh.raster(), K, T);
+    LabelVolume m;
+    m.geom = g;
+    m.voxels.assign(g.voxel_count(), 1);
+    const Eigen::Affine3d cam_from_index = Eigen::Affine3d(T.matrix()) * g.world_from_index();
+    for (int k = 0; k < g.dims[2]; ++k)
+        for (int j = 0; j < g.dims[1]; ++j)
+            for (int i = 0; i < g.dims[0]; ++i) {
+                const Eigen::Vector3d pc = cam_from_index * Eigen::Vector3d(i, j, k);
+                if (pc.z() <= 1.0) continue;
+                const auto px = project_camera(K, pc);
+                if (!px) continue;
+                const int u = int(std::lround(px->x())), v = int(std::lround(px->y()));
+                if (u < 0 || v < 0 || u >= zb.width || v >= zb.height) continue;
+                if (!roi_alpha.empty() && roi_alpha.at<uint8_t>(v, u) < 128) continue;
+                const float z = zb.depth_mm[zb.index(u, v)];
+                if (std::isfinite(z) && pc.z() < z + depth_margin_mm) m.voxels[g.linear(i, j, k)] = 0;
+            }
+    return m;
+}
+
 cv::Mat texture_rgba(const cv::Mat& photo_bgr, const cv::Mat& roi_alpha) {
     if (photo_bgr.empty() || photo_bgr.type() != CV_8UC3) throw InputError("photo", "must be an 8-bit colour image");
     cv::Mat out;

@@ -20,6 +20,7 @@
 #include "cortexfuse/core/renderer.hpp"
 #include "cortexfuse/core/roi.hpp"
 #include "cortexfuse/core/surface.hpp"
+#include "cortexfuse/core/volume.hpp"
 
 namespace cf {
 
@@ -64,6 +65,25 @@ struct SurfaceHit {
 /// nullopt when the ray misses the mesh.
 std::optional<SurfaceHit> cast_back(const SurfaceMesh& mesh, const Intrinsics& K, const Pose& T_camera_from_world,
                                     const Eigen::Vector2d& pixel);
+
+/// The craniotomy of a CT fused with the photo: which CT voxels stay shown so that the skull
+/// does not cover the photographed cortex from the camera's pose (the bone flap is off in the
+/// photo). A voxel of `ct_grid` (the CT's own grid, or the CT resampled on the T1 grid; world
+/// LPS mm either way) is hidden (0) when all hold: it lies more than 1 mm in front of the lens
+/// (camera-frame z > 1 mm), it projects (lens distortion applied, nearest pixel) inside the
+/// photo onto a pixel that is inside the ROI (`roi_alpha` >= 128; an empty `roi_alpha` means
+/// the whole photo) and where `brain_surface_world_mm` (the brain surface, rasterised from the
+/// camera, core/rasterizer.hpp) is seen, and its depth is less than that surface depth +
+/// `depth_margin_mm` (everything between the lens and depth_margin_mm below the cortex).
+/// Every other voxel is shown (1). The result has `ct_grid`'s geometry, to pass as the CT
+/// layer's mask (FusionRenderer::add_layer); it is the caller's (a value, nothing kept).
+/// `roi_alpha`: 8-bit, K.width x K.height, or empty. depth_margin_mm: [0, 50] mm.
+/// Throws InputError naming the input: a mesh with no triangles, a bad camera, a pose that is
+/// not rigid, an alpha mask of another size or type, a margin out of range, an empty grid.
+/// Cost: one rasterisation plus one projection per voxel (single thread).
+LabelVolume craniotomy_keep_mask(const VolumeGeometry& ct_grid, const SurfaceMesh& brain_surface_world_mm,
+                                 const Intrinsics& K, const Pose& T_camera_from_world, const cv::Mat& roi_alpha,
+                                 double depth_margin_mm = 3.0);
 
 /// The photo with the ROI as alpha: 8-bit BGRA (OpenCV order) for a PNG texture.
 cv::Mat texture_rgba(const cv::Mat& photo_bgr, const cv::Mat& roi_alpha);
