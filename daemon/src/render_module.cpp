@@ -217,6 +217,8 @@ struct RenderModule::Scene {
     SurfaceMesh mesh;
     TextureMapping mapping;
     cv::Mat texture_bgra;
+    Intrinsics photo_K;  // the fused view's photo camera and ROI alpha (photo size; empty: no ROI),
+    cv::Mat roi_alpha;   // kept for the CT layer's craniotomy (craniotomy_keep_mask)
 };
 
 RenderModule::RenderModule(const DaemonConfig& c) : cfg_(c) {}
@@ -512,8 +514,18 @@ void RenderModule::loop() {
     // layers' volumes (or brain_only, which masks the T1 layer) change; their transfer
     // functions, weights and visibility are settings of the kept scene (no upload).
     auto fusion_renderer = [&](const Job& job) -> FusionRenderer* {
+        // A fused view cuts the craniotomy into the CT layer (the bone the camera sees inside the
+        // ROI, down to kCraniotomyMarginMm below the brain surface, is hidden, as `cortexfuse
+        // overlay --plan` does): the cut CT depends on the registration (photo, ROI, pose,
+        // surface: the texture key), so the scene is made again only when that changes; the
+        // CT's visibility, weight and TF stay settings of the kept scene (no upload).
+        constexpr double kCraniotomyMarginMm = 3.0;
+        const bool cut_ct = job.mode == Job::Mode::fused && job.fused_src;
         std::string key = job.brain_only ? "brain|" : "whole|";
-        for (const auto& L : job.layers) key += L.name + "=" + L.src->key + ";";
+        for (const auto& L : job.layers) {
+            key += L.name + "=" + L.src->key + ";";
+            if (cut_ct && L.name == "ct") key += "cut=" + job.fused_src->texture_key + ";";
+        }
         if (sc.fusion_key != key || !sc.fusion) {
             sc.fusion.reset();
             sc.fusion_key.clear();
@@ -530,7 +542,14 @@ void RenderModule::loop() {
                 const auto vol = L.src->load();
                 const bool masked = L.name == "t1" && job.brain_only && vol->brain_mask;
                 if (&L == &job.layers.front()) sc.fusion_centre_mm = vol->volume.geom.center_world_mm();
-                fr->add_layer(vol->volume, L.tf, masked ? &*vol->brain_mask : nullptr, LayerSettings{L.weight, L.visible, Pose::Identity()});
+                const LabelVolume* mask = masked ? &*vol->brain_mask : nullptr;
+                LabelVolume keep;
+                if (cut_ct && L.name == "ct") {
+                    keep = craniotomy_keep_mask(vol->volume.geom, sc.mesh, sc.photo_K, job.fused_src->T_registered, sc.roi_alpha,
+                                                kCraniotomyMarginMm);
+                    mask = &keep;
+                }
+                fr->add_layer(vol->volume, L.tf, mask, LayerSettings{L.weight, L.visible, Pose::Identity()});
             }
             {
                 std::lock_guard lk(mu_);
@@ -574,6 +593,8 @@ void RenderModule::loop() {
             const cv::Mat alpha = src.roi.is_null() ? cv::Mat() : roi_mask(parse_roi(src.roi, "fused roi"), photo.cols, photo.rows);
             sc.mapping = map_texture(sc.mesh, K, src.T_registered, alpha);
             sc.texture_bgra = texture_rgba(photo, alpha);
+            sc.photo_K = K;
+            sc.roi_alpha = alpha;
             sc.texture_key = src.texture_key;
         }
     };
@@ -603,6 +624,8 @@ void RenderModule::loop() {
                 try {
                     // The multimodal scene when the request lists modalities (the textured surface
                     // is composited by depth over whatever the volume pass shows), else the T1 alone.
+                    // The textured surface first: the CT layer's craniotomy needs its mesh and ROI.
+                    prepare_fused(*job->fused_src);
                     if (!job->layers.empty()) {
                         r = fusion_renderer(*job);
                         centre_mm = sc.fusion_centre_mm;
@@ -610,7 +633,6 @@ void RenderModule::loop() {
                     } else {
                         r = case_renderer(*job->fused_src->volume, job->brain_only, centre_mm);
                     }
-                    prepare_fused(*job->fused_src);
                 } catch (const InputError& e) {
                     throw ApiError(422, "unprocessable", std::string("fused: ") + e.what());
                 }

@@ -22,6 +22,7 @@
 #include <httplib.h>
 #include <unistd.h>
 
+#include <algorithm>
 #include <chrono>
 #include <filesystem>
 #include <fstream>
@@ -54,6 +55,7 @@ json test_config(const fs::path& state, const std::string& renderer) {
 struct World {
     PhantomCase pc;
     std::string t1_bytes, mask_bytes, photo_png, fmri_bytes;
+    std::string ct_bytes;  // a CT-like volume on the T1's grid: bone (900) on the head outside the brain
     Eigen::Vector2d blob_px;  // the blob centre's pixel in the photo
 };
 
@@ -91,6 +93,16 @@ const World& world() {
                     const double d = (g.world_from_index() * Eigen::Vector3d(i, j, k) - *hit).norm();
                     fmri.voxels[g.linear(i, j, k)] = d < 12.0 ? float(4.0 + 6.0 * (1.0 - d / 12.0)) : 0.f;
                 }
+        // The CT: soft tissue (40) in the brain, bone (900) where the head outside it is bright,
+        // air (-1000) elsewhere (as the overlay CLI test's plan).
+        std::vector<float> sorted = t1s.voxels;
+        std::nth_element(sorted.begin(), sorted.begin() + sorted.size() / 2, sorted.end());
+        const float p50 = sorted[sorted.size() / 2];
+        Volume ct = t1s;
+        for (std::size_t i = 0; i < ct.voxels.size(); ++i)
+            ct.voxels[i] = ms.voxels[i] ? 40.f : (t1s.voxels[i] > p50 ? 900.f : -1000.f);
+        save_volume(ct, dir / "ct.nii.gz");
+        r.ct_bytes = read_bytes(dir / "ct.nii.gz");
         save_volume(fmri, dir / "fmri.nii.gz");
         r.fmri_bytes = read_bytes(dir / "fmri.nii.gz");
         return r;
@@ -104,7 +116,7 @@ struct Server : TestDaemon {
 
     /// A case with the phantom's T1, mask, photo, ROI and (when asked) fMRI map, planned by the
     /// plan job, registered with the phantom's true pose. Returns its id (0 on failure).
-    std::int64_t planned_case(const std::string& title, bool fmri) const {
+    std::int64_t planned_case(const std::string& title, bool fmri, bool ct = false) const {
         const World& w = world();
         const Reply c = post("/api/cases", {{"title", title}});
         EXPECT_EQ(c.status, 201) << c.body;
@@ -114,6 +126,9 @@ struct Server : TestDaemon {
         EXPECT_EQ(post_raw(base + "/volumes?name=mask.nii.gz&modality=mask", w.mask_bytes).status, 201);
         if (fmri) {
             EXPECT_EQ(post_raw(base + "/volumes?name=fmri.nii.gz&modality=fMRI", w.fmri_bytes).status, 201);
+        }
+        if (ct) {
+            EXPECT_EQ(post_raw(base + "/volumes?name=ct.nii.gz&modality=CT", w.ct_bytes).status, 201);
         }
         const Reply ph = post_raw(base + "/photos?name=photo.png&camera=" + url_encode(camera_json(w.pc.camera).dump()), w.photo_png);
         EXPECT_EQ(ph.status, 201) << ph.body;
@@ -259,6 +274,66 @@ TEST(FusedModalities, WeightZeroEqualsHiddenAndTheT1AloneEqualsThePlainFusedView
     turned["height"] = 120;
     turned["focal_px"] = 300.0;
     EXPECT_EQ(s.post(base() + "/fused", turned).status, 200);
+}
+
+// The CT layer of the fused view gets the craniotomy (core's craniotomy_keep_mask, as the
+// overlay CLI): from the registered camera the ROI shows the photo / cortex, not the skull,
+// while the bone outside the ROI is drawn. The cut CT is cached with the registration: the CT's
+// weight and visibility toggled twice upload no volume.
+TEST(FusedModalities, TheCtLayerHasTheCraniotomyAndTogglingItUploadsNothing) {
+    const Server& s = gl();
+    const World& w = world();
+    static std::int64_t ct_case = 0;
+    if (!ct_case) ct_case = s.planned_case("fused ct", false, true);
+    ASSERT_GT(ct_case, 0);
+    const std::string b = "/api/cases/" + std::to_string(ct_case);
+    auto body = [](bool ct_visible, double ct_weight) {
+        return json{{"format", "png"},
+                    {"surface_opacity", 0.5},
+                    {"modalities", json::array({{{"name", "t1"}, {"transfer_function", "cortex_t1"}},
+                                                {{"name", "ct"}, {"transfer_function", "ct_bone"}, {"weight", ct_weight}, {"visible", ct_visible}}})}};
+    };
+    auto uploads = [&] { return s.get("/api/status").j["modules"]["renderer"]["fusion_volume_uploads"].get<std::uint64_t>(); };
+    const Reply shown = s.post(b + "/fused", body(true, 1.0));
+    SKIP_WITHOUT_GL(shown);
+    ASSERT_EQ(shown.status, 200) << shown.body;
+    const std::uint64_t up0 = uploads();
+    const Reply hidden = s.post(b + "/fused", body(false, 1.0));
+    ASSERT_EQ(hidden.status, 200) << hidden.body;
+    const cv::Mat a = decode(shown), h = decode(hidden);
+    ASSERT_EQ(a.size(), h.size());
+    // The ROI (photo pixels, the fused view is at the photo's size) and its centre.
+    Roi roi_curve;  // as the daemon stores it (tension 0, the default)
+    roi_curve.points = w.pc.roi_points;
+    const cv::Mat roi = roi_mask(roi_curve, a.cols, a.rows);
+    const int u0 = int(std::lround(w.blob_px.x())), v0 = int(std::lround(w.blob_px.y()));
+    ASSERT_GT(roi.at<uchar>(v0, u0), 128);
+    double in_sum = 0, out_sum = 0;
+    int in_n = 0, out_n = 0;
+    for (int v = 0; v < a.rows; ++v)
+        for (int u = 0; u < a.cols; ++u) {
+            const cv::Vec3b p = a.at<cv::Vec3b>(v, u), q = h.at<cv::Vec3b>(v, u);
+            const double d = (std::abs(p[0] - q[0]) + std::abs(p[1] - q[1]) + std::abs(p[2] - q[2])) / 3.0;
+            if (roi.at<uchar>(v, u) >= 128) in_sum += d, ++in_n;
+            else out_sum += d, ++out_n;
+        }
+    const cv::Rect box = cv::Rect(u0 - 10, v0 - 10, 21, 21) & cv::Rect(0, 0, a.cols, a.rows);
+    const double d_centre = mean_abs_diff(a(box), h(box));
+    const cv::Vec3b c = a.at<cv::Vec3b>(v0, u0), c_off = h.at<cv::Vec3b>(v0, u0);
+    std::printf("fused CT shown vs hidden: mean diff inside the ROI %.2f (%d px), outside %.2f (%d px), 21x21 at the ROI centre %.2f; "
+                "centre BGR shown (%d, %d, %d), hidden (%d, %d, %d)\n",
+                in_n ? in_sum / in_n : 0.0, in_n, out_n ? out_sum / out_n : 0.0, out_n, d_centre, c[0], c[1], c[2], c_off[0], c_off[1], c_off[2]);
+    EXPECT_GT(in_n, 1000);
+    EXPECT_GT(out_sum / std::max(1, out_n), 5.0) << "the skull outside the ROI is drawn";
+    EXPECT_LT(d_centre, 2.0) << "at the ROI's centre the photo / cortex shows, not the bone";
+    EXPECT_LT(in_sum / std::max(1, in_n), 0.25 * out_sum / std::max(1, out_n)) << "the ROI is mostly free of bone";
+    // Weight and visibility toggled twice: settings of the kept scene, no upload.
+    for (const double wt : {0.3, 1.0, 0.3, 1.0}) ASSERT_EQ(s.post(b + "/fused", body(true, wt)).status, 200);
+    EXPECT_EQ(s.post(b + "/fused", body(false, 1.0)).status, 200);
+    const Reply again = s.post(b + "/fused", body(true, 1.0));
+    ASSERT_EQ(again.status, 200);
+    EXPECT_EQ(uploads(), up0) << "changing the CT's weight or visibility uploads no volume";
+    EXPECT_EQ(mean_abs_diff(decode(again), a), 0.0) << "the same request draws the same picture";
 }
 
 TEST(FusedModalities, BadModalitiesAreRefusedNamingThemAndNothingIsStored) {
