@@ -7,5 +7,7 @@ bash scripts/build.sh release
 ctest --test-dir build --output-on-failure -j2
 bash scripts/build.sh asan
 # LeakSanitizer: TBB's and ITK's process-lifetime singletons are not leaks of ours.
+# The .deb install test runs in the release half only: the package is built from the release
+# build, never from this one, and the test took 76 s here of the command's 30-minute budget.
 ASAN_OPTIONS=detect_leaks=0 UBSAN_OPTIONS=print_stacktrace=1 \
-  ctest --test-dir build-asan --output-on-failure -j2
+  ctest --test-dir build-asan --output-on-failure -j2 -LE package
