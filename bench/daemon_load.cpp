@@ -16,7 +16,6 @@
 #include <httplib.h>
 #include <signal.h>
 #include <sys/wait.h>
-#include <fcntl.h>
 #include <unistd.h>
 
 #include "daemon_process.hpp"
@@ -139,21 +138,9 @@ struct FrameWatcher {
 };
 
 pid_t start_daemon(const std::string& exe, const fs::path& dir, const std::vector<std::string>& extra) {
-    const std::string log = (dir / "cortexfused.log").string();
     std::vector<std::string> args{exe, "--listen", "127.0.0.1:0", "--state-dir", (dir / "state").string()};
     args.insert(args.end(), extra.begin(), extra.end());
-    const pid_t pid = fork();
-    if (pid == 0) {
-        const int fd = open(log.c_str(), O_WRONLY | O_CREAT | O_TRUNC, 0644);
-        dup2(fd, 1);
-        dup2(fd, 2);
-        std::vector<char*> argv;
-        for (auto& a : args) argv.push_back(a.data());
-        argv.push_back(nullptr);
-        execv(argv[0], argv.data());
-        _exit(127);
-    }
-    return pid;
+    return cf::bench::spawn_logged(args, dir / "cortexfused.log");
 }
 
 
@@ -201,21 +188,12 @@ int main(int argc, char** argv) {
 
     // Start the daemon and read its port from the log.
     const pid_t pid = start_daemon(daemon_exe, dir, daemon_args);
-    int port = 0;
-    {
-        const std::string needle = "listening on http://127.0.0.1:";
-        const auto end = Clock::now() + std::chrono::seconds(60);
-        while (Clock::now() < end && port == 0) {
-            const std::string log = read_file(dir / "cortexfused.log");
-            if (const auto at = log.find(needle); at != std::string::npos) port = std::atoi(log.c_str() + at + needle.size());
-            if (int st = 0; port == 0 && waitpid(pid, &st, WNOHANG) == pid) {
-                std::cerr << read_file(dir / "cortexfused.log");
-                fail("cortexfused exited before listening", -1, dir);
-            }
-            std::this_thread::sleep_for(std::chrono::milliseconds(50));
-        }
-        if (port == 0) fail("cortexfused did not print its port within 60 s", pid, dir);
+    const int port = cf::bench::wait_for_port(pid, dir / "cortexfused.log", 60);
+    if (port < 0) {
+        std::cerr << read_file(dir / "cortexfused.log");
+        fail("cortexfused exited before listening", -1, dir);
     }
+    if (port == 0) fail("cortexfused did not print its port within 60 s", pid, dir);
 
     httplib::Client ctl("127.0.0.1", port);
     ctl.set_read_timeout(60, 0);

@@ -19,7 +19,6 @@
 #include <httplib.h>
 #include <signal.h>
 #include <sys/wait.h>
-#include <fcntl.h>
 #include <unistd.h>
 
 #include "daemon_process.hpp"
@@ -140,37 +139,15 @@ int main(int argc, char** argv) {
     std::ofstream(g_dir / "config.json") << cfg.dump(2);
 
     // Start the daemon and read its port from the log.
-    {
-        const std::string log = (g_dir / "cortexfused.log").string();
-        std::vector<std::string> args{daemon_exe, "--config", (g_dir / "config.json").string(), "--listen", "127.0.0.1:0",
-                                      "--state-dir", (g_dir / "state").string()};
-        g_pid = fork();
-        if (g_pid == 0) {
-            const int fd = open(log.c_str(), O_WRONLY | O_CREAT | O_TRUNC, 0644);
-            dup2(fd, 1);
-            dup2(fd, 2);
-            std::vector<char*> av;
-            for (auto& a : args) av.push_back(a.data());
-            av.push_back(nullptr);
-            execv(av[0], av.data());
-            _exit(127);
-        }
+    g_pid = cf::bench::spawn_logged({daemon_exe, "--config", (g_dir / "config.json").string(), "--listen", "127.0.0.1:0",
+                                     "--state-dir", (g_dir / "state").string()},
+                                    g_dir / "cortexfused.log");
+    const int port = cf::bench::wait_for_port(g_pid, g_dir / "cortexfused.log", 60);
+    if (port < 0) {
+        g_pid = -1;
+        fail("cortexfused exited before listening");
     }
-    int port = 0;
-    {
-        const std::string needle = "listening on http://127.0.0.1:";
-        const auto end = Clock::now() + std::chrono::seconds(60);
-        while (Clock::now() < end && port == 0) {
-            const std::string log = read_file(g_dir / "cortexfused.log");
-            if (const auto at = log.find(needle); at != std::string::npos) port = std::atoi(log.c_str() + at + needle.size());
-            if (int st = 0; port == 0 && waitpid(g_pid, &st, WNOHANG) == g_pid) {
-                g_pid = -1;
-                fail("cortexfused exited before listening");
-            }
-            std::this_thread::sleep_for(std::chrono::milliseconds(50));
-        }
-        if (port == 0) fail("cortexfused did not print its port within 60 s");
-    }
+    if (port == 0) fail("cortexfused did not print its port within 60 s");
 
     httplib::Client ctl("127.0.0.1", port);
     ctl.set_read_timeout(600, 0);
