@@ -399,7 +399,12 @@ function casesScreen(): void {
 // a touch shows a new picture (window.cfRenderTimeline).
 const timeline: { what: string; t: number; size: string }[] = [];
 (window as unknown as { cfRenderTimeline: typeof timeline }).cfRenderTimeline = timeline;
-interface View { preset: string; opacity: number; orbit: Orbit; tf: TfJson | null; brainOnly: boolean }
+// Every wanted view (case view and fused view) gets the next number; the picture shown carries
+// the number of the view it shows (img data-seq), so bench/ui_latency.mjs can tell a picture of
+// the touched view from an older one still arriving (window.cfViewSeq()).
+let viewSeq = 0;
+(window as unknown as { cfViewSeq: () => number }).cfViewSeq = () => viewSeq;
+interface View { preset: string; opacity: number; orbit: Orbit; tf: TfJson | null; brainOnly: boolean; seq?: number }
 interface VolumeGeometry { center_lps_mm: Vec3; radius_mm: number; dims?: number[]; spacing_mm?: number[]; brain?: { center_lps_mm: Vec3; radius_mm: number } | null }
 // Model points picked in the 3D view, waiting for their twin on the photo (per case, this tab).
 const pendingModelPoints = new Map<number, Vec3[]>();
@@ -871,12 +876,13 @@ function caseFused(id: number, body: HTMLElement, alive: Alive, got: (c: CaseRec
     stage.style.touchAction = "none";
     const renderTextured = async () => {
       presetBox.querySelectorAll("button").forEach((b) => b.classList.toggle("active", b.dataset.value === preset));
-      const mine = ++seq;
+      const mine = ++seq, vs = ++viewSeq;
       try {
         const blob = await apiPostBlob(`/api/cases/${id}/fused`, fusedRequest({ width: w, height: hh, preset, camera: photo.intrinsics,
                                                                 T_camera_from_world: T, surfaceOpacity: Number(opacity.value) / 100 }, layers));
         if (!alive() || mine !== seq) return;
         modelImg.dataset.layers = layers ? layers.filter((l) => l.visible && l.weight > 0).map((l) => l.name).join(",") : "t1";
+        modelImg.dataset.seq = String(vs);
         const u = URL.createObjectURL(blob); urls.push(u); modelImg.src = u;
         modelImg.dataset.full = "true";
         modelImg.dataset.preset = preset;
@@ -995,12 +1001,12 @@ function caseView(id: number, body: HTMLElement, aliveFn: Alive, got: (c: CaseRe
   let caseT1 = false;  // without a T1 of its own the case shows the daemon's MRI
   const tabsBox = h("div", { "data-testid": "modality-box" });
   const editor = new TfEditor((tf, final) => {
-    if (tabs && tabs.selected.name !== "t1") { tabs.selected.tf = tf; if (final) sched.now({ ...v }); else sched.interactive({ ...v }); return; }
+    if (tabs && tabs.selected.name !== "t1") { tabs.selected.tf = tf; if (final) want(false); else want(true); return; }
     v.tf = tf;
     mark(presets, "");
     tfTitle.textContent = ` (custom, from ${v.preset.replace(/_/g, " ")})`;
     timeline.push({ what: "change", t: performance.now(), size: "" });
-    if (final) sched.now({ ...v }); else sched.interactive({ ...v });
+    if (final) want(false); else want(true);
   });
   // Landmark picking on the model (writers, a case with a brain mask on the rendered grid).
   const pickBtn = h("button", { class: "btn", "data-testid": "pick-landmark", hidden: true }, "Pick landmark");
@@ -1051,6 +1057,7 @@ function caseView(id: number, body: HTMLElement, aliveFn: Alive, got: (c: CaseRe
       const ri = r as RenderedImage;
       if (url) URL.revokeObjectURL(url);
       url = URL.createObjectURL(ri.blob);
+      img.dataset.seq = String(_view.seq ?? 0);
       img.src = url;
       renderErr.hidden = true;
       img.dataset.size = `${size.width}x${size.height}`;
@@ -1066,7 +1073,7 @@ function caseView(id: number, body: HTMLElement, aliveFn: Alive, got: (c: CaseRe
         layers = defaultLayers(["t1"]);
         tabs = null;
         tabsBox.replaceChildren(h("p", { class: "muted", "data-testid": "modality-note" }, "CT and fMRI layers need the GL renderer; the T1 is shown alone."));
-        sched.now({ ...v });
+        want(false);
         return;
       }
       showError(e);
@@ -1077,6 +1084,11 @@ function caseView(id: number, body: HTMLElement, aliveFn: Alive, got: (c: CaseRe
     sizes: () => renderSizes(stage.clientWidth || 640, stage.clientHeight || 480, 1, { width: 1280, height: 1024 }),
   });
   onLeave(() => { if (url) URL.revokeObjectURL(url); });
+  /** The view `v` changed: while a gesture goes on (`interactive`) a preview, else the picture. */
+  const want = (interactive: boolean) => {
+    const view = { ...v, seq: ++viewSeq };
+    if (interactive) sched.interactive(view); else sched.now(view);
+  };
 
   const mark = (box: HTMLElement, val: string) => box.querySelectorAll("button").forEach((b) => b.classList.toggle("active", b.dataset.value === val));
   const showOrbit = () => {
@@ -1089,7 +1101,7 @@ function caseView(id: number, body: HTMLElement, aliveFn: Alive, got: (c: CaseRe
     views.append(h("button", { class: "btn", "data-value": name, onclick: () => {
       v.orbit = { ...v.orbit, ...NAMED_VIEWS[name] };
       showOrbit();
-      sched.now({ ...v });
+      want(false);
     } }, name));
   showOrbit();
   const showBrain = () => {
@@ -1102,10 +1114,10 @@ function caseView(id: number, body: HTMLElement, aliveFn: Alive, got: (c: CaseRe
     if (!v.tf) { showError(new UserMessage("Brain only applies to an edited transfer function; the presets choose it themselves.")); return; }
     v.brainOnly = !v.brainOnly;
     showBrain();
-    sched.now({ ...v });
+    want(false);
   });
   showBrain();
-  opacity.addEventListener("input", () => { v.opacity = Number(opacity.value) / 100; opacityOut.textContent = `${opacity.value} %`; sched.interactive({ ...v }); });
+  opacity.addEventListener("input", () => { v.opacity = Number(opacity.value) / 100; opacityOut.textContent = `${opacity.value} %`; want(true); });
 
   // Presets: each is also the starting point of the editor (its JSON from the daemon).
   let tfs: Record<string, TfJson> = {};
@@ -1117,14 +1129,14 @@ function caseView(id: number, body: HTMLElement, aliveFn: Alive, got: (c: CaseRe
     tfTitle.textContent = ` (${p.replace(/_/g, " ")})`;
     if (tfs[p]) editor.load(tfs[p]);
     showBrain();
-    if (render) sched.now({ ...v });
+    if (render) want(false);
   };
   apiJson<{ presets: string[]; transfer_functions?: Record<string, TfJson> }>("GET", "/api/render/presets").then((r) => {
     tfs = r.transfer_functions ?? {};
     presets.replaceChildren(...r.presets.map((p) => h("button", { class: "btn", "data-value": p, onclick: () => pickPreset(p, true) }, p.replace(/_/g, " "))));
     if (!v.tf) pickPreset(v.preset, false);
   }, showError);
-  retry.addEventListener("click", () => sched.now({ ...v }));
+  retry.addEventListener("click", () => want(false));
   apiJson<CaseRecord>("GET", `/api/cases/${id}`).then((c) => {
     if (!aliveFn()) return;
     got(c);
@@ -1145,10 +1157,10 @@ function caseView(id: number, body: HTMLElement, aliveFn: Alive, got: (c: CaseRe
           apiJson<VolumeHistogram>("GET", path).then((r) => { layerHist[l.name] = r; showBrain(); }, () => undefined);
         }
         showBrain();
-      }, (final) => (final ? sched.now({ ...v }) : sched.interactive({ ...v })));
+      }, (final) => (final ? want(false) : want(true)));
       tabsBox.replaceChildren(h("h2", {}, "Modalities"), tabs.el);
     }
-    sched.now({ ...v });
+    want(false);
   }, missing);
   stage.append(pickMarks);
 
@@ -1242,7 +1254,7 @@ function caseView(id: number, body: HTMLElement, aliveFn: Alive, got: (c: CaseRe
     const [a] = [...fingers.values()];
     gesture = a ? { orbit: { ...v.orbit }, x: a.x, y: a.y, spread: spread() } : null;
   };
-  const changed = () => { showOrbit(); timeline.push({ what: "change", t: performance.now(), size: "" }); sched.interactive({ ...v }); };
+  const changed = () => { showOrbit(); timeline.push({ what: "change", t: performance.now(), size: "" }); want(true); };
   let tap: { id: number; x: number; y: number; moved: boolean } | null = null;
   stage.addEventListener("pointerdown", (e) => {
     if (e.target instanceof HTMLButtonElement) return;
