@@ -11,6 +11,7 @@
 #include <chrono>
 #include <cstring>
 #include <iostream>
+#include <mutex>
 #include <nlohmann/json.hpp>
 #include <string>
 #include <thread>
@@ -59,17 +60,154 @@ double pct(std::vector<double> v, double p) {
 }
 }  // namespace
 
+/// The session under CPU saturation: simulator and driver in this process over a pty or TCP
+/// at 60 Hz while `load_threads` threads spin at nice 0; both I/O threads at `priority`. Per
+/// frame the round trip is split with the simulator's timestamps: host->device (driver wrote
+/// the request -> simulator read it: the tty layer's worker and the simulator's wake-up),
+/// device (read -> reply written), device->host (written -> driver read the last byte).
+nlohmann::json under_load(bool tcp, int load_threads, double seconds, const ThreadPriorityRequest& priority, int readers,
+                          int tty_worker_priority) {
+    // As the daemon does on a tty link (tracker.tty_worker_priority): the kernel's tty workers up.
+    TtyWorkerPriority workers(tcp ? 0 : tty_worker_priority);
+    workers.apply();
+    cf::sim::TrackerSimConfig sc;
+    sc.link = tcp ? cf::sim::TrackerSimConfig::Link::tcp : cf::sim::TrackerSimConfig::Link::pty;
+    sc.thread_priority = priority;
+    cf::sim::TrackerSimulator sim(sc);
+    sim.start();
+    SessionConfig cfg;
+    cfg.tools = {ToolDefinition{"ref", cf::sim::make_synthetic_rom("CF-REFERENCE", 1, {{0, 0, 0}, {0, 50, 0}, {0, 100, 25}}), 'S'},
+                 ToolDefinition{"ptr", cf::sim::make_synthetic_rom("CF-POINTER", 2, {{0, 0, 0}, {-30, 0, 0}, {-70, 0, 20}}), 'D'}};
+    cfg.thread_priority = priority;
+    TrackerSession s(tcp ? make_tcp_transport("127.0.0.1", sim.tcp_port()) : make_serial_transport(sim.slave_path()), cfg);
+    std::mutex mu;
+    std::vector<double> h2d_ms, dev_ms, d2h_ms, rtt_ms;
+    std::uint64_t frames = 0, missed = 0, gaps = 0, late = 0;
+    std::atomic<bool> counting{false};
+    s.set_frame_callback([&](const TrackerFrame& f) {
+        if (!counting) return;
+        const auto rd = sim.request_read_ns(f.frame_number);
+        const auto wr = sim.reply_written_ns(f.frame_number);
+        std::lock_guard lk(mu);
+        ++frames;
+        missed += f.frames_missed_before;
+        gaps += f.frames_missed_before > 0;
+        late += f.late;
+        if (f.request_steady_ns) rtt_ms.push_back(static_cast<double>(f.receive_steady_ns - f.request_steady_ns) / 1e6);
+        if (rd && wr && f.request_steady_ns && *rd >= f.request_steady_ns) {
+            h2d_ms.push_back(static_cast<double>(*rd - f.request_steady_ns) / 1e6);
+            dev_ms.push_back(static_cast<double>(*wr - *rd) / 1e6);
+            d2h_ms.push_back(static_cast<double>(f.receive_steady_ns - *wr) / 1e6);
+        }
+    });
+    s.start();
+    if (!s.wait_frame(0, std::chrono::seconds(10))) return {{"error", "no frame within 10 s"}};
+    const TrackerStatus st0 = s.status();
+    std::atomic<bool> stop_load{false};
+    std::vector<std::thread> load;
+    for (int i = 0; i < load_threads; ++i)
+        load.emplace_back([&] {
+            volatile std::uint64_t x = 0;
+            while (!stop_load) x = x + 1;
+        });
+    // Readers of the session's and the simulator's status at normal priority, as the daemon's
+    // HTTP threads read them (each at 10 Hz).
+    for (int i = 0; i < readers; ++i)
+        load.emplace_back([&] {
+            while (!stop_load) {
+                const auto st = s.status();
+                const auto nf = sim.total_faults();
+                if (st.frames == 0 && nf == 1) std::cerr << "";
+                std::this_thread::sleep_for(std::chrono::milliseconds(100));
+            }
+        });
+    counting = true;
+    const auto t0 = Clock::now();
+    while (Clock::now() - t0 < std::chrono::duration<double>(seconds)) {
+        std::this_thread::sleep_for(std::chrono::milliseconds(500));
+        workers.apply();
+    }
+    counting = false;
+    const double window = std::chrono::duration<double>(Clock::now() - t0).count();
+    stop_load = true;
+    for (auto& t : load) t.join();
+    const TrackerStatus st = s.status();
+    const std::string sim_prio = sim.thread_priority();
+    s.stop();
+    sim.stop();
+    std::lock_guard lk(mu);
+    auto pcts = [](const std::vector<double>& v) {
+        return nlohmann::json{{"p50", pct(v, 0.5)}, {"p99", pct(v, 0.99)}, {"max", v.empty() ? 0.0 : *std::max_element(v.begin(), v.end())}};
+    };
+    return {{"transport", tcp ? "tcp" : "pty"}, {"load_threads", load_threads}, {"status_readers", readers}, {"seconds", window},
+            {"driver_priority", st.thread_priority}, {"tty_workers_raised", workers.raised()}, {"tty_workers_note", workers.note()}, {"driver_priority_note", st.thread_priority_note}, {"simulator_priority", sim_prio},
+            {"frames", frames}, {"rate_hz", static_cast<double>(frames) / window}, {"gaps", gaps}, {"frames_missed", missed},
+            {"late_replies", late}, {"timeouts", st.timeouts - st0.timeouts}, {"resets", st.resets - st0.resets},
+            {"reconnects", st.reconnects - st0.reconnects}, {"out_of_order", st.out_of_order - st0.out_of_order},
+            {"round_trip_ms", pcts(rtt_ms)}, {"host_to_device_ms", pcts(h2d_ms)}, {"device_ms", pcts(dev_ms)},
+            {"device_to_host_ms", pcts(d2h_ms)}};
+}
+
 int main(int argc, char** argv) {
     int runs = 5;
     double latency_s = 5;
+    int load_threads = -1;
+    double load_s = 20;
+    std::string link = "pty";
+    int readers = 0, tty_workers = 10;
+    ThreadPriorityRequest prio{20, -10};
     for (int i = 1; i < argc; ++i) {
         const std::string a = argv[i];
         if (a == "--runs" && i + 1 < argc) runs = std::clamp(std::atoi(argv[++i]), 1, 50);
         else if (a == "--latency-s" && i + 1 < argc) latency_s = std::clamp(std::atof(argv[++i]), 1.0, 120.0);
+        else if (a == "--load-threads" && i + 1 < argc) load_threads = std::clamp(std::atoi(argv[++i]), 0, 256);
+        else if (a == "--load-s" && i + 1 < argc) load_s = std::clamp(std::atof(argv[++i]), 1.0, 600.0);
+        else if (a == "--link" && i + 1 < argc && (std::string(argv[i + 1]) == "pty" || std::string(argv[i + 1]) == "tcp")) link = argv[++i];
+        else if (a == "--rt-priority" && i + 1 < argc) prio.realtime_priority = std::atoi(argv[++i]);
+        else if (a == "--nice" && i + 1 < argc) prio.nice = std::atoi(argv[++i]);
+        else if (a == "--tty-worker-priority" && i + 1 < argc) tty_workers = std::clamp(std::atoi(argv[++i]), 0, 99);
+        else if (a == "--status-readers" && i + 1 < argc) readers = std::clamp(std::atoi(argv[++i]), 0, 64);
         else {
-            std::cerr << "usage: cf_bench_tracker [--runs N] [--latency-s S]\n";
+            std::cerr << "usage: cf_bench_tracker [--runs N] [--latency-s S]\n"
+                         "       cf_bench_tracker --load-threads N [--load-s S] [--link pty|tcp] [--rt-priority P] [--nice N] [--status-readers N] [--tty-worker-priority P] [--runs N]\n"
+                         "  (the second form: the session under N spinning threads, per run and the median)\n";
             return 2;
         }
+    }
+    try {
+        prio.validate();
+    } catch (const std::exception& e) {
+        std::cerr << "cf_bench_tracker: " << e.what() << "\n";
+        return 2;
+    }
+    if (load_threads >= 0) {
+        nlohmann::json all = nlohmann::json::array();
+        std::vector<double> rate, gaps, missed, timeouts, resets, rtt99;
+        for (int r = 0; r < runs; ++r) {
+            auto j = under_load(link == "tcp", load_threads, load_s, prio, readers, tty_workers);
+            std::cerr << j.dump() << "\n";
+            if (j.contains("error")) {
+                std::cout << j.dump(1) << std::endl;
+                return 1;
+            }
+            rate.push_back(j["rate_hz"]);
+            gaps.push_back(j["gaps"]);
+            missed.push_back(j["frames_missed"]);
+            timeouts.push_back(j["timeouts"]);
+            resets.push_back(j["resets"]);
+            rtt99.push_back(j["round_trip_ms"]["p99"]);
+            all.push_back(std::move(j));
+        }
+        rusage ru{};
+        getrusage(RUSAGE_SELF, &ru);
+        std::cout << nlohmann::json{{"benchmark", "tracker_under_load"},
+                                    {"runs", all},
+                                    {"median", {{"rate_hz", median(rate)}, {"gaps", median(gaps)}, {"frames_missed", median(missed)},
+                                                {"timeouts", median(timeouts)}, {"resets", median(resets)}, {"round_trip_p99_ms", median(rtt99)}}},
+                                    {"peak_rss_mb", static_cast<double>(ru.ru_maxrss) / 1024.0}}
+                         .dump(1)
+                  << std::endl;
+        return 0;
     }
     const std::size_t n_frames = 200'000;
     const auto bytes = bx_stream(n_frames);

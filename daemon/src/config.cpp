@@ -60,6 +60,10 @@ std::vector<OptionSpec> make_options() {
         {"tracker.enabled", T::boolean, 0, 0, {}, true, "Run the tracker module"},
         {"tracker.nice", T::integer, -20, 19, {}, -10,
          "Nice value the tracker's driver and simulator threads start with (below 0 needs CAP_SYS_NICE; without it they keep the daemon's and a warning is logged)"},
+        {"tracker.tty_worker_priority", T::integer, 0, 99, {}, 10,
+         "With a serial or pty link: SCHED_FIFO priority given to the kernel's unbound workqueue workers (kworker/u*), which carry a tty's bytes to its reader; restored at stop (0: off; needs CAP_SYS_NICE, else a warning is logged once)"},
+        {"tracker.rt_priority", T::integer, 0, 99, {}, 20,
+         "SCHED_FIFO priority of the tracker's driver and simulator threads (0: none); refused without CAP_SYS_NICE or RLIMIT_RTPRIO, then tracker.nice applies and a warning is logged once"},
         {"tracker.source", T::string, 0, 0, {"sim", "serial", "tcp"}, "sim",
          "sim: the NDI Polaris simulator in-process, reached through the real driver over a pty or TCP; serial: a Polaris on tracker.serial_port; tcp: a Vega at tracker.tcp"},
         {"tracker.serial_port", T::string, 0, 0, {}, "", "Serial device for source serial, e.g. /dev/serial/by-id/usb-NDI_..."},
@@ -227,6 +231,8 @@ DaemonConfig parse_config(const nlohmann::json& j, const std::string& source) {
     c.brain_mask_path = v["data.brain_mask"].get<std::string>();
     c.tracker_enabled = v["tracker.enabled"].get<bool>();
     c.tracker_nice = v["tracker.nice"].get<int>();
+    c.tracker_rt_priority = v["tracker.rt_priority"].get<int>();
+    c.tracker_tty_worker_priority = v["tracker.tty_worker_priority"].get<int>();
     c.tracker_source = v["tracker.source"].get<std::string>();
     c.tracker_serial_port = v["tracker.serial_port"].get<std::string>();
     c.tracker_tcp = v["tracker.tcp"].get<std::string>();

@@ -1,12 +1,5 @@
 #include "tracker_module.hpp"
 
-#include <sys/resource.h>
-#include <sys/syscall.h>
-#include <unistd.h>
-
-#include <cerrno>
-#include <cstring>
-
 #include "cortexfuse/daemon/log.hpp"
 #include "cortexfuse/drivers/tracker/frame_json.hpp"
 #include "cortexfuse/drivers/tracker/transport.hpp"
@@ -19,46 +12,33 @@ TrackerModule::TrackerModule(const DaemonConfig& c) : cfg_(c) {}
 
 TrackerModule::~TrackerModule() { stop(); }
 
-namespace {
-/// Runs `f` with this thread's nice value set to `nice`, so the threads `f` starts inherit it
-/// (Linux: nice is per thread and copied by clone), then restores it (raising it again is
-/// always allowed). Lowering it below the current value needs CAP_SYS_NICE: without it the
-/// threads keep the daemon's priority and `why_not` says so.
-template <class F>
-void with_thread_nice(int nice, F&& f, std::string* why_not) {
-    const id_t tid = id_t(::syscall(SYS_gettid));
-    errno = 0;
-    const int before = ::getpriority(PRIO_PROCESS, tid);
-    const bool read_ok = errno == 0;
-    bool changed = false;
-    if (read_ok && nice != before) {
-        if (::setpriority(PRIO_PROCESS, tid, nice) == 0) changed = true;
-        else if (why_not) *why_not = std::string("cannot set nice ") + std::to_string(nice) + ": " + std::strerror(errno) + " (needs CAP_SYS_NICE)";
-    }
-    try {
-        f();
-    } catch (...) {
-        if (changed) ::setpriority(PRIO_PROCESS, tid, before);
-        throw;
-    }
-    if (changed) ::setpriority(PRIO_PROCESS, tid, before);
-}
-}  // namespace
-
 void TrackerModule::start() {
     if (!cfg_.tracker_enabled) return;
+    start_threads();
     // The driver's thread (and the simulator's) must be scheduled within the device's reply
-    // deadline even when registrations and HTTP clients saturate the CPU: start them at
-    // tracker.nice (default -10).
-    std::string why_not;
-    with_thread_nice(cfg_.tracker_nice, [&] { start_threads(); }, &why_not);
-    nice_ = why_not.empty() ? cfg_.tracker_nice : 0;
-    if (!why_not.empty()) log(LogLevel::warning, "tracker", "tracker.nice: " + why_not + "; the driver thread runs at the daemon's priority");
+    // deadline even when registrations and HTTP clients saturate the CPU: they run at SCHED_FIFO
+    // tracker.rt_priority, or at nice tracker.nice where that is refused (no CAP_SYS_NICE /
+    // RLIMIT_RTPRIO, RestrictRealtime=). Said once, here; never a reason not to start.
+    const TrackerStatus st = session_->status();
+    priority_ = st.thread_priority;
+    if (!st.thread_priority_note.empty())
+        log(LogLevel::warning, "tracker", "driver thread priority: " + st.thread_priority_note + "; it runs at " + st.thread_priority);
+    const bool tty_link = cfg_.tracker_source == "serial" || (cfg_.tracker_source == "sim" && cfg_.tracker_sim_link == "pty");
+    if (tty_link && cfg_.tracker_tty_worker_priority > 0) {
+        tty_stop_ = false;
+        tty_thread_ = std::thread([this] { keep_tty_workers(); });
+    }
+    if (sim_) {
+        sim_priority_ = sim_->thread_priority();
+        if (sim_priority_.find('(') != std::string::npos) log(LogLevel::warning, "tracker", "simulator thread priority: " + sim_priority_);
+    }
 }
 
 void TrackerModule::start_threads() {
+    const ThreadPriorityRequest priority{cfg_.tracker_rt_priority, cfg_.tracker_nice};
     SessionConfig sc;
     sc.baud = cfg_.tracker_baud;
+    sc.thread_priority = priority;
     for (const auto& r : cfg_.tracker_roms) sc.tools.push_back(load_tool_definition(r));
     std::unique_ptr<Transport> t;
     if (cfg_.tracker_source == "sim") {
@@ -67,6 +47,9 @@ void TrackerModule::start_threads() {
         simc.tcp_port = 0;
         simc.frame_rate_hz = cfg_.tracker_sim_rate_hz;
         simc.seed = std::uint64_t(cfg_.tracker_sim_seed);
+        // The simulator stands for the tracker's own hardware, which our load cannot slow down:
+        // its thread gets the driver's priority (docs/tracker.md).
+        simc.thread_priority = priority;
         if (!cfg_.tracker_sim_faults.empty()) {
             try {
                 simc.faults = cf::sim::FaultRates::parse(cfg_.tracker_sim_faults);
@@ -111,6 +94,34 @@ void TrackerModule::start_threads() {
 void TrackerModule::stop() {
     if (session_) session_->stop();
     if (sim_) sim_->stop();
+    if (tty_thread_.joinable()) {
+        {
+            std::lock_guard lk(tty_mu_);
+            tty_stop_ = true;
+        }
+        tty_cv_.notify_all();
+        tty_thread_.join();
+    }
+}
+
+void TrackerModule::keep_tty_workers() {
+    TtyWorkerPriority workers(cfg_.tracker_tty_worker_priority);
+    bool said = false;
+    std::unique_lock lk(tty_mu_);
+    while (!tty_stop_) {
+        lk.unlock();
+        workers.apply();
+        tty_raised_ = workers.raised();
+        lk.lock();
+        if (!workers.note().empty() && !said) {
+            said = true;
+            tty_note_ = workers.note();
+            log(LogLevel::warning, "tracker", workers.note() + "; a busy CPU can then delay the tracker's bytes in the kernel (docs/tracker.md)");
+        }
+        tty_cv_.wait_for(lk, std::chrono::seconds(1), [&] { return tty_stop_; });
+    }
+    lk.unlock();
+    workers.restore();
 }
 
 TrackerStatus TrackerModule::status() const {
@@ -123,7 +134,9 @@ TrackerStatus TrackerModule::status() const {
     const std::int64_t now = steady_ns();
     if (!cache_ns_ || now - cache_ns_ >= kStatusMaxAgeNs) {
         cache_ = session_->status();
-        if (sim_) cache_sim_ = {{"rate_hz", cfg_.tracker_sim_rate_hz}, {"replies", sim_->replies_sent()}, {"faults", sim_->total_faults()}};
+        if (sim_)
+            cache_sim_ = {{"rate_hz", cfg_.tracker_sim_rate_hz}, {"replies", sim_->replies_sent()}, {"faults", sim_->total_faults()},
+                          {"thread_priority", sim_priority_}};
         cache_ns_ = now;
     }
     return cache_;
@@ -141,10 +154,16 @@ nlohmann::json TrackerModule::status_json() const {
                      {"api_revision", st.api_revision},
                      {"reply_mode", st.reply_mode},
                      {"baud", st.baud},
-                     {"thread_nice", nice_},
+                     {"thread_priority", priority_},
+                     {"tty_workers_raised", tty_raised_.load()},
                      {"frame_rate_hz", st.frame_rate_hz},
                      {"latency_p50_us", st.latency_p50_us},
                      {"latency_p99_us", st.latency_p99_us},
+                     {"reply_p50_us", st.reply_p50_us},
+                     {"reply_p99_us", st.reply_p99_us},
+                     {"reply_max_us", st.reply_max_us},
+                     {"wake_late_max_us", st.wake_late_max_us},
+                     {"callback_max_us", st.callback_max_us},
                      {"last_error", st.last_error},
                      {"counters",
                       {{"frames", st.frames},
@@ -158,7 +177,12 @@ nlohmann::json TrackerModule::status_json() const {
                        {"device_errors", st.device_errors},
                        {"warnings", st.warnings},
                        {"reconnects", st.reconnects},
-                       {"resets", st.resets}}}};
+                       {"resets", st.resets},
+                       {"frame_gaps", st.frame_gaps},
+                       {"frames_missed", st.frames_missed},
+                       {"out_of_order", st.out_of_order},
+                       {"late_replies", st.late_replies},
+                       {"requests", st.requests}}}};
     if (st.last_frame_steady_ns) j["last_frame_age_ms"] = (steady_ns() - st.last_frame_steady_ns) / 1e6;
     if (sim_) {
         std::lock_guard lk(cache_mu_);

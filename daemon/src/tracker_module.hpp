@@ -5,7 +5,10 @@
 // Thread contract: start()/stop() from the daemon's main thread. The session's driver thread
 // calls the frame sink (set before start()) for every new frame; it must be quick (the daemon
 // queues the frame for the push thread). status_json() and latest_json() from any thread.
+#include <atomic>
+#include <condition_variable>
 #include <deque>
+#include <thread>
 #include <functional>
 #include <memory>
 #include <mutex>
@@ -53,7 +56,16 @@ public:
 private:
     void start_threads();
     DaemonConfig cfg_;
-    int nice_ = 0;  // the nice value the driver's thread got
+    std::string priority_, sim_priority_;  // what the driver's / simulator's threads got (after start())
+    // The kernel's tty workers at a raised priority (tty links only): kept by tty_thread_, which
+    // re-applies it every second (the pool makes new workers) and restores it at stop().
+    void keep_tty_workers();
+    std::thread tty_thread_;
+    std::mutex tty_mu_;
+    std::condition_variable tty_cv_;
+    bool tty_stop_ = false;
+    std::atomic<std::size_t> tty_raised_{0};
+    std::string tty_note_;  // under tty_mu_
     std::function<void(const cf::tracker::TrackerFrame&)> sink_;
     std::unique_ptr<cf::sim::TrackerSimulator> sim_;
     std::unique_ptr<cf::tracker::TrackerSession> session_;

@@ -16,6 +16,7 @@
 #include <cstring>
 #include <filesystem>
 #include <fstream>
+#include <future>
 #include <random>
 #include <set>
 #include <sstream>
@@ -179,6 +180,11 @@ void TrackerSimConfig::validate() const {
     if (noise_mm < 0 || noise_mm > 10) throw std::invalid_argument("--noise-mm: must be 0..10");
     if (noise_deg < 0 || noise_deg > 5) throw std::invalid_argument("--noise-deg: must be 0..5");
     if (unplugged_for.count() < 0 || unplugged_for.count() > 60000) throw std::invalid_argument("unplugged_for: must be 0..60000 ms");
+    try {
+        thread_priority.validate();
+    } catch (const std::exception& e) {
+        throw std::invalid_argument(std::string("thread_priority: ") + e.what());
+    }
 }
 
 std::vector<std::uint8_t> make_synthetic_rom(const std::string& part, std::uint8_t main_type,
@@ -238,7 +244,13 @@ struct TrackerSimulator::Impl {
 
     std::uint32_t last_tracking_frame = 0;
     mutable std::mutex mu;
-    std::vector<std::pair<std::uint32_t, std::int64_t>> written = std::vector<std::pair<std::uint32_t, std::int64_t>>(4096, {0xFFFFFFFFu, 0});
+    struct Written {
+        std::uint32_t frame = 0xFFFFFFFFu;
+        std::int64_t written_ns = 0, request_ns = 0;
+    };
+    std::vector<Written> written = std::vector<Written>(4096);
+    std::int64_t input_read_ns = 0;  // sim thread: when the bytes being processed were read
+    std::string priority_desc;        // under mu
     std::map<Fault, std::uint64_t> counts;
     std::vector<std::int64_t> restored;
     std::vector<Fault> injected;  // from other threads
@@ -761,7 +773,7 @@ struct TrackerSimulator::Impl {
         if (!f) {
             std::lock_guard lk(mu);
             auto& slot = written[last_tracking_frame % written.size()];
-            if (slot.first != last_tracking_frame) slot = {last_tracking_frame, now_ns()};
+            if (slot.frame != last_tracking_frame) slot = {last_tracking_frame, now_ns(), input_read_ns};
         }
     }
 
@@ -860,10 +872,12 @@ struct TrackerSimulator::Impl {
                     }
                 } else if (fds[i].fd == client) {
                     const ssize_t r = ::recv(client, buf, sizeof buf, 0);
+                    input_read_ns = now_ns();
                     if (r > 0) process_input(buf, static_cast<std::size_t>(r));
                     else if (r == 0 || (errno != EAGAIN && errno != EINTR)) close_client();
                 } else if (fds[i].fd == master) {
                     const ssize_t r = ::read(master, buf, sizeof buf);
+                    input_read_ns = now_ns();
                     if (r <= 0) continue;
                     if (buf[0] == TIOCPKT_DATA) {
                         process_input(buf + 1, static_cast<std::size_t>(r - 1));
@@ -921,7 +935,18 @@ void TrackerSimulator::start() {
     m.stop = false;
     if (m.cfg.link == TrackerSimConfig::Link::pty) m.open_pty();
     else m.open_listen();
-    m.thread = std::thread([&m] { m.loop(); });
+    std::promise<void> prioritised;
+    auto ready = prioritised.get_future();
+    m.thread = std::thread([&m, &prioritised] {
+        const auto pr = cf::tracker::raise_thread_priority(m.cfg.thread_priority);
+        {
+            std::lock_guard lk(m.mu);
+            m.priority_desc = pr.describe() + (pr.note.empty() ? "" : " (" + pr.note + ")");
+        }
+        prioritised.set_value();
+        m.loop();
+    });
+    ready.wait();
 }
 
 void TrackerSimulator::stop() {
@@ -976,8 +1001,18 @@ std::vector<std::int64_t> TrackerSimulator::link_restored_ns() const {
 std::optional<std::int64_t> TrackerSimulator::reply_written_ns(std::uint32_t frame) const {
     std::lock_guard lk(impl_->mu);
     const auto& slot = impl_->written[frame % impl_->written.size()];
-    if (slot.first != frame) return std::nullopt;
-    return slot.second;
+    if (slot.frame != frame) return std::nullopt;
+    return slot.written_ns;
+}
+std::optional<std::int64_t> TrackerSimulator::request_read_ns(std::uint32_t frame) const {
+    std::lock_guard lk(impl_->mu);
+    const auto& slot = impl_->written[frame % impl_->written.size()];
+    if (slot.frame != frame || slot.request_ns == 0) return std::nullopt;
+    return slot.request_ns;
+}
+std::string TrackerSimulator::thread_priority() const {
+    std::lock_guard lk(impl_->mu);
+    return impl_->priority_desc;
 }
 
 void TrackerSimulator::inject(Fault f) {

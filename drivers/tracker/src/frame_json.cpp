@@ -14,7 +14,9 @@ nlohmann::json frame_to_json(const TrackerFrame& f) {
                      {"frame", f.frame_number},
                      {"system_status", f.system_status},
                      {"receive_steady_ns", f.receive_steady_ns},
-                     {"latency_us", (f.publish_steady_ns - f.receive_steady_ns) / 1000.0}};
+                     {"latency_us", (f.publish_steady_ns - f.receive_steady_ns) / 1000.0},
+                     {"missed_before", f.frames_missed_before}};
+    if (f.late) j["late"] = true;
     j["tools"] = nlohmann::json::array();
     for (const auto& t : f.tools) {
         nlohmann::json tj{{"name", t.name},

@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <filesystem>
 #include <fstream>
+#include <future>
 #include <iterator>
 
 namespace cf::tracker {
@@ -65,6 +66,8 @@ void SessionConfig::validate(bool serial) const {
     check_range("stale_after_ms", stale_after.count(), 50, 10000);
     check_range("max_backoff_ms", max_backoff.count(), 10, 10000);
     check_range("max_consecutive_timeouts", max_consecutive_timeouts, 1, 100);
+    check_range("link_silence_ms", link_silence.count(), 50, 10000);
+    thread_priority.validate();
     if (tools.size() > 24) throw ConfigError("tools", "at most 24 tool definitions");
     for (const auto& t : tools) {
         if (t.rom.empty() || t.rom.size() > 2048) throw ConfigError("tool " + t.name, "definition must be 1..2048 bytes");
@@ -90,6 +93,7 @@ TrackerSession::TrackerSession(std::unique_ptr<Transport> transport, SessionConf
     cfg_.validate(transport_->is_serial());
     status_.transport = transport_->describe();
     latencies_ns_.reserve(1024);
+    replies_ns_.reserve(1024);
 }
 
 TrackerSession::~TrackerSession() { stop(); }
@@ -99,7 +103,21 @@ void TrackerSession::set_frame_callback(std::function<void(const TrackerFrame&)>
 void TrackerSession::start() {
     if (thread_.joinable()) return;
     stop_ = false;
-    thread_ = std::thread([this] { run(); });
+    // The driver thread sets its own priority first; start() returns once it has, so that the
+    // caller can read (and log) the outcome in status().
+    std::promise<void> prioritised;
+    auto ready = prioritised.get_future();
+    thread_ = std::thread([this, &prioritised] {
+        const ThreadPriorityResult pr = raise_thread_priority(cfg_.thread_priority);
+        {
+            std::lock_guard lk(mu_);
+            status_.thread_priority = pr.describe();
+            status_.thread_priority_note = pr.note;
+        }
+        prioritised.set_value();
+        run();
+    });
+    ready.wait();
 }
 
 void TrackerSession::stop() {
@@ -122,6 +140,16 @@ TrackerStatus TrackerSession::status() const {
         };
         s.latency_p50_us = pct(0.50);
         s.latency_p99_us = pct(0.99);
+    }
+    if (!replies_ns_.empty()) {
+        std::vector<std::int64_t> v = replies_ns_;
+        auto pct = [&](double p) {
+            const std::size_t k = std::min(v.size() - 1, static_cast<std::size_t>(p * static_cast<double>(v.size())));
+            std::nth_element(v.begin(), v.begin() + static_cast<std::ptrdiff_t>(k), v.end());
+            return static_cast<double>(v[k]) / 1000.0;
+        };
+        s.reply_p50_us = pct(0.50);
+        s.reply_p99_us = pct(0.99);
     }
     const std::int64_t now = steady_ns();
     std::size_t recent = 0;
@@ -168,6 +196,9 @@ void TrackerSession::sync_decoder_counters() {
     status_.crc_errors = c.crc_errors;
     status_.resyncs = c.resyncs;
     status_.discarded_bytes = c.discarded_bytes;
+    status_.requests = requests_;
+    status_.wake_late_max_us = static_cast<double>(wake_late_max_ns_) / 1000.0;
+    status_.callback_max_us = static_cast<double>(callback_max_ns_) / 1000.0;
 }
 
 bool TrackerSession::sleep_for(std::chrono::milliseconds d) {
@@ -245,7 +276,12 @@ std::optional<Reply> TrackerSession::await_reply(std::chrono::milliseconds timeo
         if (left.count() <= 0 || (stop_ && !shutting_down_)) return std::nullopt;
         auto wait = std::min(left, std::chrono::milliseconds(50));
         if (decoder_.buffered() > 0) wait = std::min(wait, cfg_.gap_timeout);
+        const std::int64_t t_wait = steady_ns();
         const std::size_t n = transport_->read(buf, wait);
+        if (n == 0) {  // woke at the timeout: how late (the thread waited for a core)
+            const std::int64_t late = steady_ns() - t_wait - std::chrono::nanoseconds(wait).count();
+            if (late > wake_late_max_ns_) wake_late_max_ns_ = late;
+        }
         if (n > 0) {
             last_byte = std::chrono::steady_clock::now();
             if (heard) *heard = true;
@@ -381,6 +417,9 @@ void TrackerSession::setup() {
 void TrackerSession::stream() {
     const std::string request = encode_command(use_tx_ ? "TX" : "BX", "0801");
     int consecutive_failures = 0, consecutive_corrupt = 0;
+    std::int64_t last_request_ns = 0;      // the newest request (its reply may come late)
+    std::int64_t last_heard_ns = steady_ns();  // the newest byte from the device
+    transport_->flush_input();
     auto next_poll = std::chrono::steady_clock::now();
     while (!stop_) {
         if (const int n = beep_request_.exchange(0)) {
@@ -394,9 +433,14 @@ void TrackerSession::stream() {
         if (next_poll > now && !sleep_for(std::chrono::duration_cast<std::chrono::milliseconds>(next_poll - now))) break;
         next_poll = std::chrono::steady_clock::now() + cfg_.poll_interval;
 
-        transport_->flush_input();
+        // What came after the last deadline: a late reply is published (the link works, the
+        // CPU or the kernel's tty worker was slow), anything else dropped, before asking again.
+        if (last_request_ns && drain_late_reply(last_request_ns)) consecutive_failures = 0;
         decoder_.clear();
+        const std::int64_t request_ns = steady_ns();
         transport_->write(request);
+        ++requests_;
+        last_request_ns = request_ns;
         std::int64_t receive_ns = 0;
         std::optional<Reply> r;
         bool heard = false, heard_any = false;
@@ -415,6 +459,7 @@ void TrackerSession::stream() {
         }
         sync_decoder_counters();
         if (stop_) break;
+        if (heard_any) last_heard_ns = steady_ns();
         if (!r && heard_any) {
             // Bytes came but no good reply (CRC error, truncated, garbage): the link is alive.
             {
@@ -432,8 +477,12 @@ void TrackerSession::stream() {
                 std::lock_guard lk(mu_);
                 ++status_.timeouts;
             }
-            if (++consecutive_failures >= cfg_.max_consecutive_timeouts)
-                throw Recover(transport_->describe() + ": " + std::to_string(consecutive_failures) + " tracking requests without a reply");
+            // Recover only when the device has also been silent for link_silence: a reply that
+            // is merely late is read before the next request (drain_late_reply).
+            if (++consecutive_failures >= cfg_.max_consecutive_timeouts &&
+                steady_ns() - last_heard_ns >= std::chrono::nanoseconds(cfg_.link_silence).count())
+                throw Recover(transport_->describe() + ": " + std::to_string(consecutive_failures) + " tracking requests without a reply (" +
+                              std::to_string((steady_ns() - last_heard_ns) / 1'000'000) + " ms silent)");
             continue;
         }
         if (r->kind == Reply::Kind::ascii) {
@@ -462,20 +511,71 @@ void TrackerSession::stream() {
         }
         consecutive_failures = 0;
         consecutive_corrupt = 0;
-        publish(tr, receive_ns);
+        publish(tr, receive_ns, request_ns, false);
+        last_request_ns = 0;  // answered
     }
 }
 
-void TrackerSession::publish(const TrackingReply& r, std::int64_t receive_ns) {
+bool TrackerSession::drain_late_reply(std::int64_t request_ns) {
+    std::uint8_t buf[4096];
+    std::int64_t receive_ns = 0;
+    bool published = false;
+    for (int i = 0; i < 16; ++i) {  // bounded: a device babbling garbage cannot hold us here
+        const std::size_t n = transport_->read(buf, std::chrono::milliseconds(0));
+        if (n == 0) break;
+        receive_ns = steady_ns();
+        decoder_.feed(std::span<const std::uint8_t>(buf, n));
+    }
+    while (auto r = decoder_.next()) {
+        if (use_tx_ ? r->kind != Reply::Kind::ascii : r->kind != Reply::Kind::binary) continue;
+        if (use_tx_) {
+            const auto st = classify(r->text);
+            if (st.kind == Status::Kind::error || st.kind == Status::Kind::reset || st.kind == Status::Kind::warning) continue;
+        }
+        try {
+            const TrackingReply tr = r->kind == Reply::Kind::binary ? parse_bx(r->body, kTrackOptions) : parse_tx(r->text, kTrackOptions);
+            {
+                std::lock_guard lk(mu_);
+                ++status_.late_replies;
+            }
+            publish(tr, receive_ns, request_ns, true);
+            published = true;
+        } catch (const ProtocolError&) {
+            // not a tracking reply we can use; dropped like any stale byte
+        }
+    }
+    sync_decoder_counters();
+    decoder_.clear();
+    return published;
+}
+
+void TrackerSession::publish(const TrackingReply& r, std::int64_t receive_ns, std::int64_t request_ns, bool late) {
     const std::uint32_t fn = r.frame_number();
     if (last_frame_number_ && *last_frame_number_ == fn) {
         std::lock_guard lk(mu_);
         ++status_.duplicate_frames;  // polled faster than the frame rate: same data again
+        record_round_trip(receive_ns - request_ns);
+        return;
+    }
+    // Frame numbers increase; the difference in 32 bits is signed so that a wrap is not an
+    // old frame. Within one setup an older frame is never published (a reply out of order).
+    if (last_frame_number_ && static_cast<std::int32_t>(fn - *last_frame_number_) < 0) {
+        std::lock_guard lk(mu_);
+        ++status_.out_of_order;
         return;
     }
     last_frame_number_ = fn;
     TrackerFrame f;
     f.frame_number = fn;
+    f.request_steady_ns = request_ns;
+    f.late = late;
+    // Across a recovery the device's counter normally runs on (then the frames lost during the
+    // recovery count as missed); a counter that went back (a power cycle) starts afresh.
+    if (last_published_frame_) {
+        const std::int32_t d = static_cast<std::int32_t>(fn - *last_published_frame_);
+        if (d > 1) f.frames_missed_before = static_cast<std::uint32_t>(d - 1);
+    }
+    last_published_frame_ = fn;
     f.system_status = r.system_status;
     f.receive_steady_ns = receive_ns;
     const std::int64_t stale_ns = std::chrono::nanoseconds(cfg_.stale_after).count();
@@ -508,6 +608,11 @@ void TrackerSession::publish(const TrackingReply& r, std::int64_t receive_ns) {
         const std::int64_t lat = f.publish_steady_ns - receive_ns;
         if (latencies_ns_.size() < 1024) latencies_ns_.push_back(lat);
         else latencies_ns_[latency_next_++ % 1024] = lat;
+        record_round_trip(receive_ns - request_ns);
+        if (f.frames_missed_before > 0) {
+            ++status_.frame_gaps;
+            status_.frames_missed += f.frames_missed_before;
+        }
         ++status_.frames;
         status_.last_frame_steady_ns = f.publish_steady_ns;
         frame_times_ns_.push_back(f.publish_steady_ns);
@@ -515,7 +620,11 @@ void TrackerSession::publish(const TrackingReply& r, std::int64_t receive_ns) {
         latest_ = f;
     }
     cv_.notify_all();
-    if (callback_) callback_(f);
+    if (callback_) {
+        const std::int64_t t = steady_ns();
+        callback_(f);
+        callback_max_ns_ = std::max(callback_max_ns_, steady_ns() - t);
+    }
 }
 
 void TrackerSession::shutdown_device() {
@@ -535,4 +644,13 @@ void TrackerSession::shutdown_device() {
     shutting_down_ = false;
 }
 
+}  // namespace cf::tracker
+
+namespace cf::tracker {
+void TrackerSession::record_round_trip(std::int64_t ns) {
+    if (ns <= 0) return;
+    if (replies_ns_.size() < 1024) replies_ns_.push_back(ns);
+    else replies_ns_[reply_next_++ % 1024] = ns;
+    status_.reply_max_us = std::max(status_.reply_max_us, static_cast<double>(ns) / 1000.0);
+}
 }  // namespace cf::tracker

@@ -54,6 +54,8 @@ struct DaemonConfig {
     // tracker
     bool tracker_enabled = true;
     int tracker_nice = -10;                  ///< nice value of the driver's (and simulator's) threads
+    int tracker_rt_priority = 20;            ///< SCHED_FIFO priority of those threads (0: none, nice only)
+    int tracker_tty_worker_priority = 10;    ///< SCHED_FIFO priority of the kernel's tty workers (kworker/u*) on a tty link (0: off)
     std::string tracker_source = "sim";      ///< sim | serial | tcp
     std::string tracker_serial_port, tracker_tcp;
     std::string tracker_sim_link = "pty";    ///< pty | tcp

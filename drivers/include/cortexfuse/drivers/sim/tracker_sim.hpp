@@ -26,6 +26,8 @@
 #include <thread>
 #include <vector>
 
+#include "cortexfuse/drivers/tracker/thread_priority.hpp"
+
 namespace cf::sim {
 
 /// Kinds of injected faults (fact sheet §9.3), with their names in scripts and summaries.
@@ -75,6 +77,11 @@ struct TrackerSimConfig {
     std::chrono::milliseconds unplugged_for{300};      ///< link outage of a disconnect fault
     std::chrono::milliseconds boot_time{150};          ///< silence after a power cycle
     std::chrono::milliseconds reply_delay{1};          ///< device turnaround per command
+    /// The simulator thread's priority. The simulator stands for a device with its own
+    /// processor, which a busy host CPU cannot delay; sharing our cores, it may run at a raised
+    /// priority (SCHED_FIFO / nice) so that the driver, not the stand-in, is what a load test
+    /// measures. Default: unchanged.
+    cf::tracker::ThreadPriorityRequest thread_priority{};
     /// Throws std::invalid_argument naming the option.
     void validate() const;
 };
@@ -122,6 +129,12 @@ public:
     /// steady_ns when the first BX/TX reply carrying `frame_number` was completely written
     /// (the last byte on the wire), for wire-to-frame latency; kept for the last 4096 frames.
     std::optional<std::int64_t> reply_written_ns(std::uint32_t frame_number) const;
+    /// steady_ns when the simulator read the request that the reply carrying `frame_number`
+    /// answers (same window): with reply_written_ns and the driver's request/receive times it
+    /// splits a round trip into host->device, device and device->host.
+    std::optional<std::int64_t> request_read_ns(std::uint32_t frame_number) const;
+    /// What the simulator thread got (ThreadPriorityResult::describe()) and the note, after start().
+    std::string thread_priority() const;
 
 private:
     struct Impl;

@@ -27,6 +27,7 @@
 #include <vector>
 
 #include "cortexfuse/drivers/tracker/ndi_codec.hpp"
+#include "cortexfuse/drivers/tracker/thread_priority.hpp"
 #include "cortexfuse/drivers/tracker/transport.hpp"
 
 namespace cf::tracker {
@@ -66,6 +67,14 @@ struct SessionConfig {
     std::chrono::milliseconds max_backoff{500};       ///< reconnect backoff ceiling (10..10000)
     int max_consecutive_timeouts = 3;                 ///< silent requests, then reset (serial) / reconnect (TCP) (1..100)
     int max_consecutive_corrupt = 30;                 ///< corrupt/garbled replies in a row, then the same (1..1000)
+    /// Silence before a recovery: besides max_consecutive_timeouts silent requests, no byte
+    /// for this long (50..10000). A reply that comes after its deadline (the CPU was busy, the
+    /// kernel's tty worker late) is still read and published before the next request
+    /// (late_replies), so only a link that stays silent this long is reset.
+    std::chrono::milliseconds link_silence{500};
+    /// The driver thread's priority, set when it starts (thread_priority.hpp): SCHED_FIFO when
+    /// realtime_priority > 0 and permitted, else the nice value. Default: unchanged.
+    ThreadPriorityRequest thread_priority{};
     /// Throws ConfigError naming the option and its range.
     void validate(bool serial) const;
 };
@@ -90,6 +99,12 @@ struct TrackerFrame {
     std::uint16_t system_status = 0;
     std::int64_t receive_steady_ns = 0;  ///< when the reply's last byte was read from the transport
     std::int64_t publish_steady_ns = 0;  ///< when the frame became available
+    std::int64_t request_steady_ns = 0;  ///< when the BX/TX request it answers was written
+    /// Device frames between the previous published frame and this one that were never read
+    /// (frame_number - previous - 1; 0 for the first frame of a session or after the device's
+    /// counter restarted).
+    std::uint32_t frames_missed_before = 0;
+    bool late = false;                   ///< the reply came after reply_timeout (read before the next request)
     std::vector<TrackedTool> tools;
 };
 
@@ -100,8 +115,23 @@ struct TrackerStatus {
     int baud = 0;
     std::uint64_t frames = 0, duplicate_frames = 0, crc_errors = 0, resyncs = 0, discarded_bytes = 0,
                   timeouts = 0, lost_replies = 0, protocol_errors = 0, device_errors = 0, warnings = 0, reconnects = 0, resets = 0;
+    /// By the device's frame numbers: jumps between consecutive published frames (frame_gaps)
+    /// and the device frames they skipped (frames_missed); replies older than the last
+    /// published frame (out_of_order, never published); replies read after their deadline and
+    /// published (late_replies).
+    std::uint64_t frame_gaps = 0, frames_missed = 0, out_of_order = 0, late_replies = 0;
     double frame_rate_hz = 0;                   ///< new frames over the last second
     double latency_p50_us = 0, latency_p99_us = 0;  ///< wire-to-frame, last 1024 frames
+    /// BX/TX round trip (request written -> reply's last byte read), last 1024 frames, and the
+    /// largest since start.
+    double reply_p50_us = 0, reply_p99_us = 0, reply_max_us = 0;
+    /// BX/TX requests written; the largest delay of the driver thread's wake-up past a read
+    /// timeout (it waited for a core) and the slowest frame callback, since start.
+    std::uint64_t requests = 0;
+    double wake_late_max_us = 0, callback_max_us = 0;
+    /// What the driver thread got (ThreadPriorityResult::describe()) and, when that is not
+    /// what SessionConfig::thread_priority asked, why (one line).
+    std::string thread_priority, thread_priority_note;
     std::int64_t last_frame_steady_ns = 0;
 };
 const char* state_name(TrackerStatus::State s);
@@ -142,7 +172,11 @@ private:
     void set_state(TrackerStatus::State s);
     void note_error(const std::string& e);
     void sync_decoder_counters();
-    void publish(const TrackingReply& r, std::int64_t receive_ns);
+    void publish(const TrackingReply& r, std::int64_t receive_ns, std::int64_t request_ns, bool late);
+    /// Before a new request: reads whatever arrived since the last deadline and publishes a
+    /// good tracking reply in it (a late one); drops the rest. True when a reply was published.
+    bool drain_late_reply(std::int64_t request_ns);
+    void record_round_trip(std::int64_t ns);  // under mu_
     bool sleep_for(std::chrono::milliseconds d);  // false when stopping
 
     std::unique_ptr<Transport> transport_;  // owned; driver thread only
@@ -152,7 +186,8 @@ private:
     bool use_tx_ = false;
     bool streaming_ = false;
     bool shutting_down_ = false;  // TSTOP/COMM after stop(): commands still wait for replies
-    std::optional<std::uint32_t> last_frame_number_;
+    std::optional<std::uint32_t> last_frame_number_;   // this setup's last published frame number
+    std::optional<std::uint32_t> last_published_frame_;  // across setups, for frames_missed
     std::vector<std::int64_t> last_ok_ns_;  // per handle_names_ entry
 
     std::function<void(const TrackerFrame&)> callback_;
@@ -167,6 +202,10 @@ private:
     std::deque<std::int64_t> frame_times_ns_;
     std::vector<std::int64_t> latencies_ns_;  // ring of 1024
     std::size_t latency_next_ = 0;
+    std::vector<std::int64_t> replies_ns_;    // ring of 1024 round trips
+    std::size_t reply_next_ = 0;
+    std::uint64_t requests_ = 0;                      // driver thread; copied by sync_decoder_counters
+    std::int64_t wake_late_max_ns_ = 0, callback_max_ns_ = 0;  // the same
     std::uint64_t sequence_ = 0;
 };
 
