@@ -1,6 +1,7 @@
 #include "render_module.hpp"
 
 #include <algorithm>
+#include <cctype>
 #include <chrono>
 #include <cmath>
 #include <filesystem>
@@ -177,6 +178,7 @@ struct RenderModule::Job {
     std::string view_key;          // the view's fields as canonical JSON (format/quality/pixel left out)
     Eigen::Vector2d pixel{0, 0};   // pick
     double surface_opacity = 0.5;  // fused
+    std::string stream;            // a client's stream of views: a newer job of it supersedes this one
     std::shared_ptr<const FusedSource> fused_src;
     std::shared_ptr<const CaseRenderSource> case_src;  // per-case view (else data.t1)
     struct Layer {
@@ -243,7 +245,8 @@ void RenderModule::stop() {
 std::shared_ptr<RenderModule::Job> RenderModule::parse_job(const nlohmann::json& r, const std::vector<std::string>& extra) const {
     if (!r.is_object()) throw ApiError(400, "bad_request", "render: the request must be a JSON object");
     static const std::vector<std::string> known = {"width", "height", "preset", "opacity", "brain_only", "view", "distance_mm",
-                                                   "T_camera_from_world", "camera", "focal_px", "format", "quality", "sample_mm", "tf"};
+                                                   "T_camera_from_world", "camera", "focal_px", "format", "quality", "sample_mm", "tf",
+                                                   "stream"};
     for (auto it = r.begin(); it != r.end(); ++it)
         if (std::find(known.begin(), known.end(), it.key()) == known.end() && std::find(extra.begin(), extra.end(), it.key()) == extra.end())
             throw bad(it.key(), "unknown field");
@@ -278,6 +281,11 @@ std::shared_ptr<RenderModule::Job> RenderModule::parse_job(const nlohmann::json&
     job->format = get_str(r, "format", "jpeg");
     if (job->format != "jpeg" && job->format != "png") throw bad("format", "'" + job->format + "' is not jpeg or png");
     job->quality = get_int(r, "quality", cfg_.jpeg_quality, 10, 100);
+    job->stream = get_str(r, "stream", "");
+    if (r.contains("stream") &&
+        (job->stream.empty() || job->stream.size() > 64 ||
+         !std::all_of(job->stream.begin(), job->stream.end(), [](char c) { return std::isalnum((unsigned char)c) || c == '_' || c == '-' || c == '.' || c == ':'; })))
+        throw bad("stream", "must be 1..64 characters of A-Z a-z 0-9 _ - . :");
     try {
         if (r.contains("T_camera_from_world")) job->pose = parse_pose(r, "render request");
         else if (!std::set<std::string>{"left", "right", "anterior", "posterior", "superior", "inferior"}.count(job->view))
@@ -296,7 +304,7 @@ std::shared_ptr<RenderModule::Job> RenderModule::parse_job(const nlohmann::json&
     }
     // The view: everything that changes the picture's geometry or its surface (not its encoding).
     nlohmann::json key = r;
-    for (const char* k : {"format", "quality", "pixel"}) key.erase(k);
+    for (const char* k : {"format", "quality", "pixel", "stream"}) key.erase(k);
     job->view_key = key.dump();
     return job;
 }
@@ -440,6 +448,59 @@ struct RemoveDir {
     }
 };
 }  // namespace
+
+bool RenderModule::superseded_locked(const Job& job) const {
+    if (job.stream.empty() || job.mode == Job::Mode::pick) return false;
+    return std::any_of(queue_.begin(), queue_.end(),
+                       [&](const std::shared_ptr<Job>& q) { return q->mode != Job::Mode::pick && q->stream == job.stream; });
+}
+
+ApiError RenderModule::superseded_error(const Job& job) {
+    return ApiError(409, "superseded", "render: superseded by a newer view of stream '" + job.stream + "' (nothing was drawn)");
+}
+
+void RenderModule::render_in_bands(Renderer& r, const Intrinsics& K, const Pose& T, const RenderOptions& ro, RenderImage& img,
+                                   const Job& job) {
+    const std::size_t W = std::size_t(K.width), H = std::size_t(K.height), n = W * H;
+    if (job.stream.empty() || n < 2 * std::size_t(kBandPixels)) {
+        r.render(K, T, ro, img);
+        return;
+    }
+    // Rows of the same camera: the principal point moved up by the band's first row, so every
+    // pixel keeps its own ray (the picture equals the one rendered whole; tested).
+    const int rows = std::max(16, int(kBandPixels / K.width));
+    {
+        std::lock_guard lk(mu_);
+        ++banded_;
+    }
+    img = RenderImage{};
+    img.width = K.width;
+    img.height = K.height;
+    for (int y0 = 0; y0 < K.height; y0 += rows) {
+        if (y0 > 0) {
+            std::lock_guard lk(mu_);
+            if (superseded_locked(job)) {
+                ++superseded_;
+                ++superseded_in_flight_;
+                throw superseded_error(job);
+            }
+        }
+        Intrinsics Kb = K;
+        Kb.height = std::min(rows, K.height - y0);
+        Kb.cy = K.cy - y0;
+        RenderImage b;
+        r.render(Kb, T, ro, b);
+        auto put = [&](auto& dst, const auto& src, std::size_t per_px) {
+            if (src.empty()) return;
+            if (dst.empty()) dst.resize(n * per_px);
+            std::copy(src.begin(), src.end(), dst.begin() + std::ptrdiff_t(std::size_t(y0) * W * per_px));
+        };
+        put(img.rgb, b.rgb, 3);
+        put(img.grey, b.grey, 1);
+        put(img.depth_mm, b.depth_mm, 1);
+        put(img.coverage, b.coverage, 1);
+    }
+}
 
 void RenderModule::loop() {
     Scene sc;
@@ -614,6 +675,12 @@ void RenderModule::loop() {
             }
             job = queue_.front();
             queue_.pop_front();
+            if (superseded_locked(*job)) {
+                // A newer view of the same stream is queued: this one would be thrown away.
+                ++superseded_;
+                job->result.set_exception(std::make_exception_ptr(superseded_error(*job)));
+                continue;
+            }
         }
         try {
             if (!sc.volume) throw ApiError(503, "unavailable", "render: the volume could not be loaded: " + error_);
@@ -708,7 +775,7 @@ void RenderModule::loop() {
             if (job->mode == Job::Mode::fused) {
                 bgr = render_fused(*r, sc.mesh, sc.mapping, sc.texture_bgra, K, T, job->surface_opacity, 3.0, ro);
             } else {
-                r->render(K, T, ro, img);
+                render_in_bands(*r, K, T, ro, img, *job);
                 sc.last_depth_mm = std::move(img.depth_mm);
                 sc.last_view_key = job->view_key;
                 sc.last_backend = r->name();
@@ -737,7 +804,14 @@ void RenderModule::loop() {
             }
             job->result.set_value(std::move(out));
         } catch (...) {
-            {
+            bool superseded = false;  // given up for a newer view: counted apart, not a failure
+            try {
+                throw;
+            } catch (const ApiError& e) {
+                superseded = e.code == "superseded";
+            } catch (...) {
+            }
+            if (!superseded) {
                 std::lock_guard lk(mu_);
                 ++failures_;
             }
@@ -772,6 +846,9 @@ nlohmann::json RenderModule::status_json() const {
                      {"last_render_ms", last_render_ms_},
                      {"case_preparations", case_preparations_},
                      {"fusion_volume_uploads", fusion_uploads_},
+                     {"banded_renders", banded_},
+                     {"superseded", superseded_},
+                     {"superseded_in_flight", superseded_in_flight_},
                      {"queued", queue_.size()}};
     if (!error_.empty()) j["error"] = error_;
     return j;

@@ -17,6 +17,8 @@
 #include <vector>
 
 #include "cortexfuse/core/camera.hpp"
+#include "cortexfuse/core/renderer.hpp"
+#include "cortexfuse/daemon/endpoints.hpp"
 #include "cortexfuse/core/volume.hpp"
 #include "cortexfuse/daemon/config.hpp"
 
@@ -95,6 +97,9 @@ public:
     /// depth_mm, reused_render, renderer}. ApiError 400 for a bad request or a pixel outside the
     /// image, 422 when the ray hits no surface, 503 without a volume.
     nlohmann::json pick(const nlohmann::json& request, std::shared_ptr<const CaseRenderSource> src = nullptr);
+    /// A view of a stream (request field `stream`) larger than twice this is drawn in bands of
+    /// about this many pixels, so that a newer view of the stream waits at most one band.
+    static constexpr int kBandPixels = 65536;
     /// Prepared per-case renderers kept on the render thread.
     static constexpr std::size_t kCaseRenderersCached = 2;
     /// Volumes uploaded to multimodal (fusion) renderers so far: a TF, weight or visibility
@@ -126,6 +131,13 @@ private:
     std::shared_ptr<Job> parse_job(const nlohmann::json& request, const std::vector<std::string>& extra_fields) const;
     void parse_layers(Job& job, const nlohmann::json& request, const std::vector<ModalityLayerSource>& layers) const;
     void enqueue(const std::shared_ptr<Job>& job);
+    /// True when a newer job of `job`'s stream is queued (mu_ held; never for picks or without a stream).
+    bool superseded_locked(const Job& job) const;
+    static ApiError superseded_error(const Job& job);
+    /// `r.render` of the whole view, or, for a view of a stream of at least 2 * kBandPixels, in
+    /// bands of rows (the same pixels), giving up between bands with ApiError 409 `superseded`
+    /// when a newer job of the stream is queued (the render thread is then free for it).
+    void render_in_bands(Renderer& r, const Intrinsics& K, const Pose& T, const RenderOptions& ro, RenderImage& img, const Job& job);
     void loop();
     DaemonConfig cfg_;
     std::thread thread_;
@@ -138,6 +150,7 @@ private:
     nlohmann::json volume_info_;  // set once the volume is loaded
     std::string backend_, backend_reason_;
     std::uint64_t renders_ = 0, failures_ = 0, fusion_uploads_ = 0, case_preparations_ = 0;
+    std::uint64_t superseded_ = 0, superseded_in_flight_ = 0, banded_ = 0;
     double last_render_ms_ = 0;
     bool thread_done_ = false;
 };

@@ -62,13 +62,13 @@ export async function fusedModalitiesE2E({ page, step, expect, shot, checkTarget
     const b = await page.getByTestId(id).boundingBox();
     expect(b && b.height >= 48 && b.width >= 48, `${id} is a touch target of at least 48 px (${b?.width.toFixed(0)}x${b?.height.toFixed(0)})`);
   }
-  await page.waitForFunction(() => document.querySelector('[data-testid="fused-model"]')?.dataset.layers === "t1,fmri", null, { timeout: 60000 });
+  await page.waitForFunction(() => { const i = document.querySelector('[data-testid="fused-model"]'); return i?.dataset.layers === "t1,fmri" && i.dataset.full === "true" && i.complete; }, null, { timeout: 60000 });
   const srcOn = await model.getAttribute("src");
   await shot("fused-modalities-01-fmri-on");
   await checkTargets("fused-modalities");
   const t0 = Date.now();
   await page.getByTestId("fused-modality-fmri").tap();
-  await page.waitForFunction((old) => { const i = document.querySelector('[data-testid="fused-model"]'); return i?.dataset.layers === "t1" && i.getAttribute("src") !== old && i.complete && i.naturalWidth > 100; },
+  await page.waitForFunction((old) => { const i = document.querySelector('[data-testid="fused-model"]'); return i?.dataset.layers === "t1" && i.dataset.full === "true" && i.getAttribute("src") !== old && i.complete && i.naturalWidth > 300; },
     srcOn, { timeout: 60000 });
   const srcOff = await model.getAttribute("src");
   const tOff = (Date.now() - t0) / 1000;

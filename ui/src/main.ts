@@ -864,7 +864,7 @@ function caseFused(id: number, body: HTMLElement, alive: Alive, got: (c: CaseRec
       return;
     }
     const T0 = reg.final_pose!.T_camera_from_world;
-    let T = T0, preset = "cortex_t1", seq = 0;
+    let T = T0, preset = "cortex_t1";
     // The multimodal volume under the photo (fused_modalities.ts): the T1 and the plan's CT /
     // fMRI on/off and weighted; only the modalities the plan has are offered.
     let layers = fusedLayers(c);
@@ -874,43 +874,68 @@ function caseFused(id: number, body: HTMLElement, alive: Alive, got: (c: CaseRec
     photoImg.hidden = true;
     modelImg.style.opacity = "1";
     stage.style.touchAction = "none";
-    const renderTextured = async () => {
-      presetBox.querySelectorAll("button").forEach((b) => b.classList.toggle("active", b.dataset.value === preset));
-      const mine = ++seq, vs = ++viewSeq;
-      try {
-        const blob = await apiPostBlob(`/api/cases/${id}/fused`, fusedRequest({ width: w, height: hh, preset, camera: photo.intrinsics,
-                                                                T_camera_from_world: T, surfaceOpacity: Number(opacity.value) / 100 }, layers));
-        if (!alive() || mine !== seq) return;
-        modelImg.dataset.layers = layers ? layers.filter((l) => l.visible && l.weight > 0).map((l) => l.name).join(",") : "t1";
-        modelImg.dataset.seq = String(vs);
-        const u = URL.createObjectURL(blob); urls.push(u); modelImg.src = u;
-        modelImg.dataset.full = "true";
-        modelImg.dataset.preset = preset;
+    // The pictures (issue 7: a new picture within 150 ms of a touch): a quarter-size preview at
+    // once while a finger moves (drag, pinch, sliders), the full size once it rests 200 ms; a
+    // button shows the preview, then the full size. One stream per screen: the daemon gives up
+    // an older full render when a newer view of it arrives (RenderScheduler overtake).
+    interface FusedWant { req: Record<string, unknown>; layersShown: string; preset: string; seq: number }
+    const stream = `fused-${Math.random().toString(36).slice(2, 10)}`;
+    let lastWant = "";
+    const fsched = new RenderScheduler<FusedWant>({
+      render: (fv, size) => apiPostBlob(`/api/cases/${id}/fused`, { ...fv.req, width: size.width, height: size.height, stream }),
+      onImage: (blob, fv, _size, full) => {
+        if (!alive()) return;
+        modelImg.dataset.layers = fv.layersShown;
+        modelImg.dataset.seq = String(fv.seq);
+        const u = URL.createObjectURL(blob as Blob); urls.push(u); modelImg.src = u;
+        while (urls.length > 4) URL.revokeObjectURL(urls.splice(1, 1)[0]);  // [0] is the photo's
+        modelImg.dataset.full = String(full);
+        modelImg.dataset.preset = fv.preset;
         modelImg.dataset.textured = "true";
-        stage.dataset.atCamera = String(T === T0);
         tagView?.redraw();
-      } catch (e) {
+      },
+      onError: (e) => {
+        if (!alive()) return;
         if (layers && layersNeedGl(plainMessage(e))) {  // a CPU-only daemon: the T1 alone, and why
           layers = null;
           modalityBox.replaceChildren(h("p", { class: "muted", "data-testid": "fused-modality-note" }, "CT and fMRI need the GL renderer, which this cart does not have: the photo is shown over the T1 alone."));
-          void renderTextured();
+          renderTextured(false, true);
           return;
         }
         showError(e);
-      }
+      },
+      sizes: () => ({ full: { width: w, height: hh }, preview: { width: Math.max(16, Math.round(w / 4)), height: Math.max(16, Math.round(hh / 4)) } }),
+      overtake: true,
+      isSuperseded: (e) => e instanceof ApiError && e.code === "superseded",
+    });
+    let atCameraPose: number[][] | null = null;  // the registered camera as GET .../fused/camera answered it
+    /** The view changed: `interactive` while a finger moves, else a step (button, let go). The
+     *  same view asked for again (a slider let go where it was last moved) makes nothing new. */
+    const renderTextured = (interactive = false, force = false) => {
+      presetBox.querySelectorAll("button").forEach((b) => b.classList.toggle("active", b.dataset.value === preset));
+      stage.dataset.atCamera = String(T === T0 || atCameraPose === T);
+      const req = fusedRequest({ width: w, height: hh, preset, camera: photo.intrinsics, T_camera_from_world: T,
+                                 surfaceOpacity: Number(opacity.value) / 100 }, layers) as unknown as Record<string, unknown>;
+      const key = JSON.stringify(req);
+      if (!interactive && !force && key === lastWant) return;
+      lastWant = key;
+      const fv: FusedWant = { req, preset, seq: ++viewSeq,
+                              layersShown: layers ? layers.filter((l) => l.visible && l.weight > 0).map((l) => l.name).join(",") : "t1" };
+      if (interactive) fsched.interactive(fv); else fsched.soon(fv);
     };
-    if (layers) modalityBox.replaceChildren(h("h2", {}, "Modalities"), new FusedModalityPanel(layers, (final) => { if (final) void renderTextured(); }).el);
+    if (layers) modalityBox.replaceChildren(h("h2", {}, "Modalities"), new FusedModalityPanel(layers, (final) => renderTextured(!final)).el);
     opacity.removeEventListener("input", setOpacity);
-    opacity.addEventListener("input", () => { opacityOut.textContent = `${opacity.value} %`; });
-    opacity.addEventListener("change", () => { void renderTextured(); });
+    opacity.addEventListener("input", () => { opacityOut.textContent = `${opacity.value} %`; renderTextured(true); });
+    opacity.addEventListener("change", () => renderTextured(false));
     opacityOut.textContent = `${opacity.value} %`;
-    presetBox.replaceChildren(...["cortex_t1", "surface_white"].map((p) => h("button", { class: "btn", "data-value": p, onclick: () => { preset = p; void renderTextured(); } }, p.replace(/_/g, " "))));
+    presetBox.replaceChildren(...["cortex_t1", "surface_white"].map((p) => h("button", { class: "btn", "data-value": p, onclick: () => { preset = p; renderTextured(false); } }, p.replace(/_/g, " "))));
     snapBtn.addEventListener("click", async () => {
       try {
         const cam = await apiJson<{ T_camera_from_world: number[][] }>("GET", `/api/cases/${id}/fused/camera?registration_id=${reg.id}`);
         T = cam.T_camera_from_world;
-        await renderTextured();
-        stage.dataset.atCamera = "true";
+        atCameraPose = T;
+        pivot = pivot0;
+        renderTextured(false, true);
       } catch (e) { showError(e); }
     });
     presetBox.after(modalityBox, h("h2", {}, "View"), h("div", { class: "choices" }, snapBtn),
@@ -921,47 +946,50 @@ function caseFused(id: number, body: HTMLElement, alive: Alive, got: (c: CaseRec
                           viewW: w, viewH: hh, pose: () => T, atCamera: atCam, toCamera: async () => { snapBtn.click(); await new Promise((r) => setTimeout(r, 0)); },
                           canWrite: !document.body.classList.contains("read-only"), showError });
     // Drag: 0.3 degrees a pixel about the point the camera looks at (at the registered distance).
-    let drag: { x: number; y: number; T: number[][] } | null = null;
+    let drag: { x: number; y: number; T: number[][]; moving: boolean } | null = null;
     const pivot0 = Math.abs(T0[2][3]) > 1 ? Math.hypot(T0[0][3], T0[1][3], T0[2][3]) : 300;
     let pivot = pivot0; // a pinch brings the camera closer to it
-    snapBtn.addEventListener("click", () => { pivot = pivot0; });
-    stage.addEventListener("pointerdown", (e) => { drag = { x: e.clientX, y: e.clientY, T }; stage.setPointerCapture(e.pointerId); });
-    stage.addEventListener("pointerup", (e) => {
-      if (!drag) return;
+    // The model turns while the finger moves (a preview each move, the full size when it rests);
+    // a tap (under 8 px) turns nothing (it may place a tag).
+    stage.addEventListener("pointerdown", (e) => { drag = { x: e.clientX, y: e.clientY, T, moving: false }; stage.setPointerCapture(e.pointerId); });
+    stage.addEventListener("pointermove", (e) => {
+      if (!drag || fingers.size > 1) return;
       const dx = e.clientX - drag.x, dy = e.clientY - drag.y;
-      const from = drag.T;
-      drag = null;
-      if (Math.hypot(dx, dy) < 8) return;
-      T = orbitCamera(from, -0.3 * dx, 0.3 * dy, pivot);
-      void renderTextured();
+      if (!drag.moving && Math.hypot(dx, dy) < 8) return;
+      drag.moving = true;
+      T = orbitCamera(drag.T, -0.3 * dx, 0.3 * dy, pivot);
+      renderTextured(true);
     });
-    // Two fingers: pinch to zoom, move both to pan (fused_pose.ts pinchPan), applied when they lift.
+    stage.addEventListener("pointerup", () => { drag = null; });
+    // Two fingers: pinch to zoom, move both to pan (fused_pose.ts pinchPan), live while they move;
+    // the pivot's new depth is kept when they lift.
     const fingers = new Map<number, { x: number; y: number }>();
-    let pinch: { d0: number; cx: number; cy: number; T: number[][] } | null = null;
+    let pinch: { d0: number; cx: number; cy: number; T: number[][]; pivot: number; z: { T: number[][]; pivotDepthMm: number } | null } | null = null;
     const spread = () => { const [a, b] = [...fingers.values()]; return { d: Math.hypot(a.x - b.x, a.y - b.y), cx: (a.x + b.x) / 2, cy: (a.y + b.y) / 2 }; };
     stage.addEventListener("pointerdown", (e) => {
       fingers.set(e.pointerId, { x: e.clientX, y: e.clientY });
-      if (fingers.size === 2) { const s = spread(); pinch = { d0: Math.max(1, s.d), cx: s.cx, cy: s.cy, T }; drag = null; }
+      if (fingers.size === 2) { const s = spread(); pinch = { d0: Math.max(1, s.d), cx: s.cx, cy: s.cy, T, pivot, z: null }; drag = null; }
     });
-    stage.addEventListener("pointermove", (e) => { if (fingers.has(e.pointerId)) fingers.set(e.pointerId, { x: e.clientX, y: e.clientY }); });
+    stage.addEventListener("pointermove", (e) => {
+      if (!fingers.has(e.pointerId)) return;
+      fingers.set(e.pointerId, { x: e.clientX, y: e.clientY });
+      if (!pinch || fingers.size !== 2) return;
+      const s = spread(), r = stage.getBoundingClientRect();
+      const cssPerPx = Math.min(r.width / w, r.height / hh) || 1; // the picture is fitted (object-fit: contain)
+      const fView = (photo.intrinsics as { fx: number }).fx * (w / K.width);
+      pinch.z = pinchPan(pinch.T, s.d / pinch.d0, (s.cx - pinch.cx) / cssPerPx, (s.cy - pinch.cy) / cssPerPx, pinch.pivot, fView);
+      T = pinch.z.T;
+      renderTextured(true);
+    });
     const lift = (e: PointerEvent) => {
-      if (pinch && fingers.size === 2) {
-        const s = spread(), r = stage.getBoundingClientRect();
-        const cssPerPx = Math.min(r.width / w, r.height / hh) || 1; // the picture is fitted (object-fit: contain)
-        const fView = (photo.intrinsics as { fx: number }).fx * (w / K.width);
-        const z = pinchPan(pinch.T, s.d / pinch.d0, (s.cx - pinch.cx) / cssPerPx, (s.cy - pinch.cy) / cssPerPx, pivot, fView);
-        T = z.T;
-        pivot = z.pivotDepthMm;
-        pinch = null;
-        void renderTextured();
-      }
+      if (pinch?.z) pivot = pinch.z.pivotDepthMm;
       fingers.delete(e.pointerId);
       if (fingers.size < 2) pinch = null;
       drag = null; // the other finger's lift is no turn
     };
     stage.addEventListener("pointerup", lift);
     stage.addEventListener("pointercancel", lift);
-    void renderTextured();
+    renderTextured(false, true);
   }, missing);
 }
 
@@ -1041,6 +1069,7 @@ function caseView(id: number, body: HTMLElement, aliveFn: Alive, got: (c: CaseRe
   const target = (view: View): Vec3 => (view.brainOnly && geo?.brain ? geo.brain.center_lps_mm : geo!.center_lps_mm);
 
   let url = "";
+  const stream = `case-view-${Math.random().toString(36).slice(2, 10)}`;  // the daemon gives up our older full render for a newer view
   // The request of a view (POST /api/render; the pick sends the same fields, so it picks what is shown).
   const viewRequest = (view: View, size: { width: number; height: number }) => {
     const req: Record<string, unknown> = { width: size.width, height: size.height, opacity: view.opacity,
@@ -1051,7 +1080,7 @@ function caseView(id: number, body: HTMLElement, aliveFn: Alive, got: (c: CaseRe
     return caseT1 ? Object.assign(req, caseRenderFields(id, layers, { preset: view.preset, tf: view.tf })) : req;
   };
   const sched = new RenderScheduler<View>({
-    render: (view, size) => apiRender(viewRequest(view, size)),
+    render: (view, size) => apiRender({ ...viewRequest(view, size), stream }),
     onImage: (r, _view, size, full) => {
       if (!aliveFn()) return;
       const ri = r as RenderedImage;
@@ -1082,12 +1111,20 @@ function caseView(id: number, body: HTMLElement, aliveFn: Alive, got: (c: CaseRe
       info.textContent = "No picture: the render failed.";
     },
     sizes: () => renderSizes(stage.clientWidth || 640, stage.clientHeight || 480, 1, { width: 1280, height: 1024 }),
+    overtake: true,
+    isSuperseded: (e) => e instanceof ApiError && e.code === "superseded",
   });
   onLeave(() => { if (url) URL.revokeObjectURL(url); });
   /** The view `v` changed: while a gesture goes on (`interactive`) a preview, else the picture. */
-  const want = (interactive: boolean) => {
+  // Buttons show a preview, then the full size; the same view asked for again (the tf point let
+  // go where it was last dragged) makes nothing new unless forced (Try again).
+  let lastWant = "";
+  const want = (interactive: boolean, force = false) => {
+    const key = JSON.stringify({ ...v, caseT1, layers });
+    if (!interactive && !force && key === lastWant) return;
+    lastWant = key;
     const view = { ...v, seq: ++viewSeq };
-    if (interactive) sched.interactive(view); else sched.now(view);
+    if (interactive) sched.interactive(view); else sched.soon(view);
   };
 
   const mark = (box: HTMLElement, val: string) => box.querySelectorAll("button").forEach((b) => b.classList.toggle("active", b.dataset.value === val));
@@ -1136,7 +1173,7 @@ function caseView(id: number, body: HTMLElement, aliveFn: Alive, got: (c: CaseRe
     presets.replaceChildren(...r.presets.map((p) => h("button", { class: "btn", "data-value": p, onclick: () => pickPreset(p, true) }, p.replace(/_/g, " "))));
     if (!v.tf) pickPreset(v.preset, false);
   }, showError);
-  retry.addEventListener("click", () => want(false));
+  retry.addEventListener("click", () => want(false, true));
   apiJson<CaseRecord>("GET", `/api/cases/${id}`).then((c) => {
     if (!aliveFn()) return;
     got(c);

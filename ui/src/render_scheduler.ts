@@ -30,12 +30,18 @@ export interface SchedulerOptions<V, R> {
   /** Rest time after the last change before the full-size render. */
   settleMs?: number;
   timers?: Timers;
+  /** A preview of a newer view may start while a full-size render of an older one is in flight
+   *  (the daemon gives that one up when both carry the same `stream`; docs/api/render.md), so a
+   *  touch during the slow full render still shows a picture at once. */
+  overtake?: boolean;
+  /** An error that only says the render was given up for a newer view: not reported. */
+  isSuperseded?: (e: unknown) => boolean;
 }
 
 export class RenderScheduler<V> {
   // What to render next, in order: at most [preview, full] of the newest view.
   private queue: { v: V; full: boolean; gen: number }[] = [];
-  private busy = false;
+  private inflight: { gen: number; full: boolean }[] = [];
   private gen = 0;
   private shownGen = -1;
   private settle: unknown = null;
@@ -63,7 +69,16 @@ export class RenderScheduler<V> {
     this.pump();
   }
 
-  /** The view changed by a button: straight to full size. */
+  /** The view changed by a button (a step, no gesture): the preview at once, then the full
+   *  size right after it (no rest to wait for). */
+  soon(v: V): void {
+    if (this.settle !== null) { this.timers.clear(this.settle); this.settle = null; }
+    const gen = ++this.gen;
+    this.queue = [{ v, full: false, gen }, { v, full: true, gen }];
+    this.pump();
+  }
+
+  /** Straight to full size (no preview). */
   now(v: V): void {
     if (this.settle !== null) { this.timers.clear(this.settle); this.settle = null; }
     this.queue = [{ v, full: true, gen: ++this.gen }];
@@ -71,15 +86,21 @@ export class RenderScheduler<V> {
   }
 
   get inFlight(): boolean {
-    return this.busy;
+    return this.inflight.length > 0;
+  }
+
+  private canStart(next: { full: boolean; gen: number }): boolean {
+    if (!this.inflight.length) return true;
+    return !!this.o.overtake && !next.full && this.inflight.length < 2 && this.inflight.every((f) => f.full && f.gen < next.gen);
   }
 
   private pump(): void {
-    if (this.busy || !this.queue.length) return;
+    if (!this.queue.length || !this.canStart(this.queue[0])) return;
     const w = this.queue.shift()!;
     const sizes = this.o.sizes();
     const size = w.full ? sizes.full : sizes.preview;
-    this.busy = true;
+    const mine = { gen: w.gen, full: w.full };
+    this.inflight.push(mine);
     this.o.render(w.v, size).then(
       (r) => {
         // Drop an answer older than what is shown (a full picture is never replaced by an older preview).
@@ -88,9 +109,9 @@ export class RenderScheduler<V> {
           this.o.onImage(r, w.v, size, w.full);
         }
       },
-      (e) => this.o.onError(e),
+      (e) => { if (!this.o.isSuperseded?.(e)) this.o.onError(e); },
     ).finally(() => {
-      this.busy = false;
+      this.inflight = this.inflight.filter((f) => f !== mine);
       this.pump();
     });
   }

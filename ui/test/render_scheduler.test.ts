@@ -152,3 +152,78 @@ describe("RenderScheduler", () => {
     expect(t.shown.map((s) => s.r)).toEqual(["a-full", "b-small", "b-full"]);
   });
 });
+
+describe("RenderScheduler: buttons and overtaking a slow full render", () => {
+  it("a button shows the preview first, then the full size at once (no rest)", async () => {
+    const t = harness();
+    t.sched.soon("a");
+    expect(t.calls.map((c) => [c.v, c.size.width])).toEqual([["a", 160]]);
+    t.calls[0].resolve("a-small");
+    await t.flush();
+    expect(t.calls.map((c) => [c.v, c.size.width])).toEqual([["a", 160], ["a", 640]]);
+    t.calls[1].resolve("a-full");
+    await t.flush();
+    expect(t.shown).toEqual([{ r: "a-small", full: false }, { r: "a-full", full: true }]);
+  });
+
+  it("a button during a drag drops the drag's pending full render", async () => {
+    const t = harness();
+    t.sched.interactive("a");
+    t.sched.soon("b");
+    t.calls[0].resolve("a-small");
+    await t.flush();
+    t.advance(1000);
+    expect(t.calls.map((c) => [c.v, c.size.width])).toEqual([["a", 160], ["b", 160]]);
+    t.calls[1].resolve("b-small");
+    await t.flush();
+    expect(t.calls.map((c) => [c.v, c.size.width])).toEqual([["a", 160], ["b", 160], ["b", 640]]);
+  });
+
+  it("without overtake a preview waits for the full render in flight", async () => {
+    const t = harness();
+    t.sched.now("a");
+    t.sched.interactive("b");
+    expect(t.calls.length).toBe(1);
+  });
+
+  it("with overtake a newer preview starts while an older full render is in flight; that one's answer is dropped", async () => {
+    const shown: string[] = [];
+    const errors: unknown[] = [];
+    const calls: { v: string; w: number; resolve: (r: string) => void; reject: (e: unknown) => void }[] = [];
+    const sched = new RenderScheduler<string>({
+      render: (v, size) => new Promise((resolve, reject) => calls.push({ v, w: size.width, resolve: resolve as (r: string) => void, reject })),
+      onImage: (r) => shown.push(r as string),
+      onError: (e) => errors.push(e),
+      sizes: () => ({ full: { width: 640, height: 480 }, preview: { width: 160, height: 120 } }),
+      timers: { set: () => 0, clear: () => undefined },
+      overtake: true,
+      isSuperseded: (e) => e instanceof Error && e.message === "superseded",
+    });
+    sched.now("a");
+    sched.interactive("b");
+    sched.interactive("c");  // c waits for b: one preview at a time
+    expect(calls.map((c) => [c.v, c.w])).toEqual([["a", 640], ["b", 160]]);
+    calls[1].resolve("b-small");
+    await new Promise((r) => setTimeout(r, 0));
+    expect(calls.map((c) => [c.v, c.w])).toEqual([["a", 640], ["b", 160], ["c", 160]]);
+    calls[0].reject(new Error("superseded"));  // the daemon gave the old full render up
+    calls[2].resolve("c-small");
+    await new Promise((r) => setTimeout(r, 0));
+    expect(shown).toEqual(["b-small", "c-small"]);
+    expect(errors).toEqual([]);  // a superseded render is no error to show
+    // A full render that still finished after the newer preview is not shown.
+    sched.now("d");
+    sched.interactive("e");
+    calls[4].resolve("e-small");
+    await new Promise((r) => setTimeout(r, 0));
+    calls[3].resolve("d-full");
+    await new Promise((r) => setTimeout(r, 0));
+    expect(shown).toEqual(["b-small", "c-small", "e-small"]);
+    // Other errors are still reported.
+    sched.now("f");
+    expect(calls.at(-1)!.v).toBe("f");
+    calls.at(-1)!.reject(new Error("render failed"));
+    await new Promise((r) => setTimeout(r, 0));
+    expect((errors[0] as Error).message).toBe("render failed");
+  });
+});
