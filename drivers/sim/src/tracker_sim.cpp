@@ -937,7 +937,7 @@ void TrackerSimulator::start() {
     else m.open_listen();
     std::promise<void> prioritised;
     auto ready = prioritised.get_future();
-    m.thread = std::thread([&m, &prioritised] {
+    m.thread = std::thread([&m, prioritised = std::move(prioritised)]() mutable {
         const auto pr = cf::tracker::raise_thread_priority(m.cfg.thread_priority);
         {
             std::lock_guard lk(m.mu);

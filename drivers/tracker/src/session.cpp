@@ -107,7 +107,7 @@ void TrackerSession::start() {
     // caller can read (and log) the outcome in status().
     std::promise<void> prioritised;
     auto ready = prioritised.get_future();
-    thread_ = std::thread([this, &prioritised] {
+    thread_ = std::thread([this, prioritised = std::move(prioritised)]() mutable {
         const ThreadPriorityResult pr = raise_thread_priority(cfg_.thread_priority);
         {
             std::lock_guard lk(mu_);
