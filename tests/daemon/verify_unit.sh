@@ -11,7 +11,9 @@ grep -q "^ExecStart=$binary" "$tmp/cortexfused.service"
 out=$(systemd-analyze verify "$tmp/cortexfused.service" 2>&1) || { echo "$out"; exit 1; }
 # verify exits 0 on some warnings; any line naming the unit is a problem.
 if echo "$out" | grep -q "cortexfused.service"; then echo "$out"; exit 1; fi
-for key in Type=notify WatchdogSec= DynamicUser=yes ProtectSystem=strict StateDirectory= DevicePolicy=closed; do
+# The tracker's priorities (docs/tracker.md): SCHED_FIFO allowed, the one capability granted.
+for key in Type=notify WatchdogSec= DynamicUser=yes ProtectSystem=strict StateDirectory= DevicePolicy=closed \
+           RestrictRealtime=no LimitRTPRIO= AmbientCapabilities=CAP_SYS_NICE; do
   grep -q "^$key" "$unit" || { echo "$unit: $key missing"; exit 1; }
 done
 echo "ok"
