@@ -34,6 +34,14 @@ const Fixture& fixture() {
         x.c = load_case(x.dir / "case_0000");
         return x;
     }();
+    // The generated case is read into memory above; its folder goes when the process ends.
+    static const struct DirRemover {
+        fs::path dir;
+        ~DirRemover() {
+            std::error_code ec;
+            fs::remove_all(dir, ec);
+        }
+    } remover{f.dir};
     return f;
 }
 

@@ -52,10 +52,19 @@ json get_json(int port, const std::string& path) {
     return r ? json::parse(r->body, nullptr, false) : json();
 }
 
+struct StateDirGuard {
+    fs::path dir;
+    ~StateDirGuard() {
+        std::error_code ec;
+        fs::remove_all(dir, ec);
+    }
+};
+
 }  // namespace
 
 TEST(CameraLive, SimulatedCameraFramesArriveAsJpegAtMostTenASecondAndStopWhenNobodyPolls) {
     const fs::path state = fs::temp_directory_path() / ("cf_daemon_live_" + std::to_string(::getpid()));
+    const StateDirGuard guard{state};  // removed on an early ASSERT too
     Daemon d(parse_config(config(state, "sim"), "test"));
     d.start();
     const int port = d.port();
@@ -136,6 +145,7 @@ TEST(CameraLive, SimulatedCameraFramesArriveAsJpegAtMostTenASecondAndStopWhenNob
 
 TEST(CameraLive, WithoutACameraAnswers503) {
     const fs::path state = fs::temp_directory_path() / ("cf_daemon_live_none_" + std::to_string(::getpid()));
+    const StateDirGuard guard{state};  // removed on an early ASSERT too
     Daemon d(parse_config(config(state, "none"), "test"));
     d.start();
     const Frame f = get_live(d.port());
