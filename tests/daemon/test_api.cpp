@@ -2,6 +2,7 @@
 // (through the real driver over a pty) and the CPU renderer; HTTP through cpp-httplib, the
 // WebSocket through civetweb's client API.
 #include <civetweb.h>
+#include <unistd.h>
 #include <gtest/gtest.h>
 #include <httplib.h>
 
@@ -194,6 +195,41 @@ TEST(DaemonApi, StatusAnswersEveryModule) {
     std::string why;
     EXPECT_TRUE(g_daemon->healthy(&why)) << why;
     EXPECT_NE(g_daemon->status_line().find("tracker streaming"), std::string::npos) << g_daemon->status_line();
+}
+
+// The tracker's threads say what priority they got (SCHED_FIFO with CAP_SYS_NICE, else the nice
+// fallback), the kernel's tty workers are raised on the pty link when permitted, and the driver
+// counts gaps by the device's frame numbers.
+TEST(DaemonApi, TrackerReportsItsPrioritiesAndFrameNumberGaps) {
+    port();
+    json t;
+    const auto end = std::chrono::steady_clock::now() + std::chrono::seconds(20);
+    while (std::chrono::steady_clock::now() < end) {
+        t = get_json("/api/status")["modules"]["tracker"];
+        if (t["state"] == "streaming" && t["counters"]["frames"].get<int>() > 30) break;
+        std::this_thread::sleep_for(std::chrono::milliseconds(100));
+    }
+    ASSERT_EQ(t["state"], "streaming") << t.dump();
+    const std::string prio = t.value("thread_priority", "");
+    const std::string sim_prio = t["simulator"].value("thread_priority", "");
+    if (::geteuid() == 0) {  // root has CAP_SYS_NICE: what the defaults ask is granted
+        EXPECT_EQ(prio, "SCHED_FIFO 20") << t.dump();
+        EXPECT_EQ(sim_prio, "SCHED_FIFO 20") << t.dump();
+        // The keeper thread raises them within its first pass (the pool always has some).
+        for (int i = 0; i < 30 && t.value("tty_workers_raised", 0) == 0; ++i) {
+            std::this_thread::sleep_for(std::chrono::milliseconds(100));
+            t = get_json("/api/status")["modules"]["tracker"];
+        }
+        EXPECT_GT(t.value("tty_workers_raised", 0), 0) << t.dump();
+    } else {
+        EXPECT_TRUE(prio == "SCHED_FIFO 20" || prio.rfind("nice ", 0) == 0) << prio;
+    }
+    for (const char* k : {"frame_gaps", "frames_missed", "out_of_order", "late_replies", "requests"})
+        EXPECT_TRUE(t["counters"].contains(k)) << k;
+    EXPECT_GE(t["counters"]["requests"].get<std::uint64_t>(), t["counters"]["frames"].get<std::uint64_t>());
+    EXPECT_GE(t["reply_max_us"].get<double>(), t["reply_p99_us"].get<double>());
+    EXPECT_GE(t["reply_p99_us"].get<double>(), t["reply_p50_us"].get<double>());
+    EXPECT_GT(t["reply_p50_us"].get<double>(), 0.0);
 }
 
 TEST(DaemonApi, ErrorsAreJsonWithTheRightStatus) {
