@@ -31,7 +31,7 @@ void add_bench(CLI::App& app) {
         int frames = 30, warmup = 5, threads = 0, bins = 64, repeat = 20, cases = 4;
         double sample_mm = 1.0;
         uint64_t seed = 1;
-        bool json = false, no_shading = false, surface_only = false, masked = false, keep = false, reference_seed = false;
+        bool json = false, no_shading = false, surface_only = false, no_start_map = false, masked = false, keep = false, reference_seed = false;
     };
     auto o = std::make_shared<Opts>();
     auto* bench = app.add_subcommand("bench", "Time the engine: one JSON object with medians on stdout");
@@ -49,6 +49,7 @@ void add_bench(CLI::App& app) {
     render->add_option("--sample-mm", o->sample_mm, "Sample distance along rays, mm")->capture_default_str();
     render->add_flag("--no-shading", o->no_shading, "Turn Lambert shading off");
     render->add_flag("--surface-only", o->surface_only, "Registration's rendering: the first crossing of the surface level only");
+    render->add_flag("--no-start-map", o->no_start_map, "CPU: rays start where they enter the volume's box, not at the nearest visible brick (same pictures; to compare)");
     render->add_option("--save-frame", o->save_frame, "Write the first timed frame as PNG");
     render->add_flag("--json", o->json, "One line of JSON (default: indented)");
     render->callback([o] {
@@ -65,6 +66,7 @@ void add_bench(CLI::App& app) {
             c.sample_mm = o->sample_mm;
             c.shading = !o->no_shading;
             c.surface_only = o->surface_only;
+            c.ray_start_map = !o->no_start_map;
             c.save_frame = o->save_frame;
             ProgressBar bar("bench render");
             const auto j = bench::run_render_bench(c, &bar.progress());

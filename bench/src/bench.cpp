@@ -223,6 +223,7 @@ json run_render_bench(const RenderBenchConfig& c, const Progress* progress) {
     ro.sample_distance_mm = c.sample_mm;
     ro.shading = c.shading;
     ro.surface_only = c.surface_only;
+    ro.ray_start_map = c.ray_start_map;
     ro.threads = threads;
     RenderImage img;
     std::vector<double> ms;
@@ -265,6 +266,7 @@ json run_render_bench(const RenderBenchConfig& c, const Progress* progress) {
               {"tf", c.tf},
               {"shading", c.shading},
               {"surface_only", c.surface_only},
+              {"ray_start_map", c.ray_start_map},
               {"sample_mm", c.sample_mm},
               {"threads", threads},
               {"frames", c.frames},

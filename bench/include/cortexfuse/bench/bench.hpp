@@ -78,6 +78,7 @@ struct RenderBenchConfig {
     double sample_mm = 1.0;
     bool shading = true;
     bool surface_only = false;  // registration's mode: the first crossing of the surface level, opaque
+    bool ray_start_map = true;  // CPU: rays start at the nearest visible brick (false to compare)
     std::filesystem::path save_frame;     // PNG of the first timed frame, if set
 };
 /// Times `frames` renders (after `warmup`), one camera step each. Throws InputError on bad

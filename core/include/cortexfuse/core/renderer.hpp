@@ -33,6 +33,10 @@ struct RenderOptions {
     bool surface_only = false;
     double early_termination_alpha = 0.98;
     double coverage_alpha = 0.5;          // coverage mask and depth: where opacity reaches this
+    /// CPU: start each ray where it can first meet a visible brick (the nearest brick on the
+    /// edge of the visible set that projects onto its pixel), not where it enters the volume's
+    /// box. The pictures are the same; false only to compare (`bench render --no-start-map`).
+    bool ray_start_map = true;
     bool want_rgb = true;                 // skip work the caller does not need
     bool want_depth = true;
     int threads = 0;                      // 0 = all cores
