@@ -139,6 +139,15 @@ const result = { benchmark: "ui_latency", issue: 7, target_first_ms: 150, utc_st
                  how: "time from the touch event (its timeStamp in the page) to the picture drawn: <img> src set, decoded, next animation frame; first = first picture of the touched view or a newer one, refined = first full-size picture of the view the gesture ended on",
                  sizes: [] };
 let failed = false;
+// Stopped by a signal: the browser and the daemon go too, and the scratch folder.
+for (const sig of ["SIGINT", "SIGTERM"])
+  process.on(sig, async () => {
+    log(`${sig}: stopping the browser and the daemon`);
+    if (browser) await browser.close().catch(() => undefined);
+    await stopDaemon();
+    fs.rmSync(tmp, { recursive: true, force: true });
+    process.exit(130);
+  });
 try {
   const tSetup = Date.now();
   let base;
@@ -221,14 +230,14 @@ try {
     await page.setViewportSize(size);
     const sz = { viewport: `${size.width}x${size.height}`, kinds: {} };
     result.sizes.push(sz);
-    const run = async (kind, img, n, gesture, between = 150) => {
+    const run = async (kind, img, n, gesture, warmIndex = 1, between = 150) => {
       if (kindsWanted && !kindsWanted.has(kind)) return;
       const samples = [];
       // One touch first, not counted (its time is reported as warmup_ms): the first use of a
       // preset or layer prepares the daemon's renderer for it (seconds), which is not what
       // repeated touches cost.
       let warmup = null;
-      try { warmup = await measure(img, (mark) => gesture(mark, 1)); } catch (e) { log(`${sz.viewport} ${kind} warm-up: ${String(e.message ?? e).slice(0, 200)}`); }
+      try { warmup = await measure(img, (mark) => gesture(mark, warmIndex)); } catch (e) { log(`${sz.viewport} ${kind} warm-up: ${String(e.message ?? e).slice(0, 200)}`); }
       await sleep(between);
       for (let i = 0; i < n; i++) {
         try {
@@ -288,7 +297,7 @@ try {
       await touch("touchMove", [{ x: stage.x - d1, y: stage.y, id: 1 }, { x: stage.x + d1, y: stage.y, id: 2 }]);
       await touch("touchEnd", []);
     });
-    const presetNames = ["skin", "cortex t1", "surface white"];
+    const presetNames = ["surface white", "skin", "cortex t1"];  // the warm-up (1) is the first skin
     await run("preset_button", "render-image", REPEATS, async (mark, i) => {
       const p = await boxOf(page.getByTestId("presets").getByRole("button", { name: presetNames[i % presetNames.length], exact: true }), "preset button");
       await touch("touchStart", [p]);
@@ -332,7 +341,7 @@ try {
       await touch("touchEnd", []);
     };
     const sliderFrac = (testid) => async () => page.getByTestId(testid).evaluate((e) => (Number(e.value) - Number(e.min)) / (Number(e.max) - Number(e.min)));
-    await run("opacity_slider", "render-image", REPEATS, async (mark, i) => slide("opacity", mark, i, await sliderFrac("opacity")));
+    await run("opacity_slider", "render-image", REPEATS, async (mark, i) => slide("opacity", mark, i, await sliderFrac("opacity")), 0);
     // Back to a known view for the next size.
     await page.getByTestId("presets").getByRole("button", { name: "cortex t1", exact: true }).tap();
     await sleep(1500);
@@ -379,7 +388,7 @@ try {
       await mark();
       await touch("touchEnd", []);
     });
-    await run("fused_opacity_slider", "fused-model", REPEATS, async (mark, i) => slide("fused-opacity", mark, i, await sliderFrac("fused-opacity")));
+    await run("fused_opacity_slider", "fused-model", REPEATS, async (mark, i) => slide("fused-opacity", mark, i, await sliderFrac("fused-opacity")), 0);
     if (hasLayers) {
       await run("fused_modality_toggle", "fused-model", REPEATS, async (mark) => {
         const p = await centre("fused-modality-fmri");
@@ -391,7 +400,7 @@ try {
         await page.getByTestId("fused-modality-fmri").tap();
         await sleep(2000);
       }
-      await run("fused_modality_weight", "fused-model", REPEATS, async (mark, i) => slide("fused-weight-fmri", mark, i, await sliderFrac("fused-weight-fmri")));
+      await run("fused_modality_weight", "fused-model", REPEATS, async (mark, i) => slide("fused-weight-fmri", mark, i, await sliderFrac("fused-weight-fmri")), 0);
     }
   }
   if (pageErrors.length) throw new Error(`page errors: ${pageErrors.join("; ").slice(0, 500)}`);

@@ -210,10 +210,15 @@ struct RenderModule::Scene {
         std::unique_ptr<Renderer> masked, whole;
     };
     std::list<PreparedCase> cases;
-    /// The last multimodal scene (one GL fusion renderer, its layers' keys in order).
+    /// The last multimodal scene (one GL fusion renderer, its layers' keys in order), and the
+    /// one before it: a view toggling between two scenes (the case view's brain-only and whole
+    /// presets mask the T1 layer differently, the fused view's CT is cut) uploads nothing again.
     std::string fusion_key;
     std::unique_ptr<FusionRenderer> fusion;
     Eigen::Vector3d fusion_centre_mm = Eigen::Vector3d::Zero();
+    std::string fusion_prev_key;
+    std::unique_ptr<FusionRenderer> fusion_prev;
+    Eigen::Vector3d fusion_prev_centre_mm = Eigen::Vector3d::Zero();
     // fused
     std::string surface_key, texture_key;
     SurfaceMesh mesh;
@@ -587,7 +592,20 @@ void RenderModule::loop() {
             key += L.name + "=" + L.src->key + ";";
             if (cut_ct && L.name == "ct") key += "cut=" + job.fused_src->texture_key + ";";
         }
+        if ((sc.fusion_key != key || !sc.fusion) && sc.fusion_prev && sc.fusion_prev_key == key) {
+            std::swap(sc.fusion, sc.fusion_prev);
+            std::swap(sc.fusion_key, sc.fusion_prev_key);
+            std::swap(sc.fusion_centre_mm, sc.fusion_prev_centre_mm);
+        }
         if (sc.fusion_key != key || !sc.fusion) {
+            // The current scene becomes the one before (the older one is dropped first: at most two).
+            sc.fusion_prev.reset();
+            sc.fusion_prev_key.clear();
+            if (sc.fusion) {
+                sc.fusion_prev = std::move(sc.fusion);
+                sc.fusion_prev_key = sc.fusion_key;
+                sc.fusion_prev_centre_mm = sc.fusion_centre_mm;
+            }
             sc.fusion.reset();
             sc.fusion_key.clear();
             const std::string what = job.mode == Job::Mode::fused ? "fused modalities" : "render modalities";

@@ -83,7 +83,9 @@ public:
     /// brain mask; default true for cortex_t1 and surface_white), view ("left", "right",
     /// "anterior", "posterior", "superior", "inferior") and distance_mm, or T_camera_from_world
     /// (4x4 rows, LPS mm -> camera mm); camera (intrinsics JSON as in case.json) or focal_px;
-    /// format "jpeg" | "png"; quality (10..100).
+    /// format "jpeg" | "png"; quality (10..100); stream (the client's stream of views: a newer
+    /// queued view of the same stream makes this one answer ApiError 409 `superseded`, before it
+    /// is drawn or between its bands; see render_in_bands).
     /// With `src`: the case's volume instead of data.t1 (brain_only: its brain mask, when it has
     /// one). `request` may also hold `modalities` (with `layers`: one per named modality, [0]
     /// is the reference t1): [{name, preset | tf, weight, visible}], rendered in one pass by the

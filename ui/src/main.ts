@@ -882,7 +882,9 @@ function caseFused(id: number, body: HTMLElement, alive: Alive, got: (c: CaseRec
     const stream = `fused-${Math.random().toString(36).slice(2, 10)}`;
     let lastWant = "";
     const fsched = new RenderScheduler<FusedWant>({
-      render: (fv, size) => apiPostBlob(`/api/cases/${id}/fused`, { ...fv.req, width: size.width, height: size.height, stream }),
+      // The preview also steps 2 mm along the rays (half the samples of the full picture's 1 mm).
+      render: (fv, size) => apiPostBlob(`/api/cases/${id}/fused`, { ...fv.req, width: size.width, height: size.height, stream,
+                                                                    ...(size.width < w ? { sample_mm: 2 } : {}) }),
       onImage: (blob, fv, _size, full) => {
         if (!alive()) return;
         modelImg.dataset.layers = fv.layersShown;
