@@ -6,7 +6,8 @@
 // function as a 4096-entry table, two bisection steps and a secant step to the first crossing
 // of the reference layer's surface level (depth and shading there), Lambert headlight shading from the central-
 // difference gradient, front-to-back compositing, early termination, and empty-space skipping
-// over 8^3 bricks (a distance map: the empty cube around a brick in one jump). Image row v is
+// over 8^3 bricks (a distance map: the empty cube around a brick in one jump), rays starting at
+// the nearest frontier brick (u_start_z, core's RayStartMap). Image row v is
 // framebuffer row v (no flip; read back row by row).
 // Weighted fusion of several layers: see cortexfuse/core/fusion.hpp.
 #ifndef NLAYERS
@@ -52,6 +53,13 @@ uniform bool u_directional;                 // distant light from u_light_world,
 uniform bool u_surface_only;                // layer 0: only its first surface crossing, opaque (RenderOptions::surface_only)
 uniform vec3 u_light_world;
 uniform bool u_has_mesh;
+// Where rays may start (core's RayStartMap): the nearest camera depth of a frontier brick per
+// cell of a grid over normalised image coordinates (x/z, y/z).
+uniform bool u_start_on;
+uniform vec2 u_start_origin;
+uniform float u_start_inv_cell;
+uniform ivec2 u_start_cells;
+layout(std430, binding = 0) readonly buffer StartMap { float u_start_z[]; };
 
 float vol(int l, vec3 p) {
     return texture(u_vol[l], (p + 0.5) / u_dims[l]).r * 65535.0;
@@ -130,6 +138,12 @@ void main() {
         // contribute. A software rasteriser (llvmpipe) runs every branch of a loop body for
         // all lanes of a SIMD group, so one loop holding all three would cost them all at
         // every step. The samples taken and their order are the CPU ray caster's.
+        if (u_start_on) {
+            // No visible brick before depth z, so none before t = z / ray_cam.z (0.05 mm earlier
+            // for rounding): the same lattice points show anything, the same picture.
+            const ivec2 cell = clamp(ivec2(floor((ray_cam.xy / ray_cam.z - u_start_origin) * u_start_inv_cell)), ivec2(0), u_start_cells - 1);
+            t0 = max(t0, u_start_z[cell.y * u_start_cells.x + cell.x] / ray_cam.z - 0.05);
+        }
         float t = ceil(t0 / step) * step;
         bool done = false;
         bool have_ref = false;  // the next composited sample is the refined surface crossing

@@ -165,7 +165,7 @@ public:
             box_lo_[a] = hi[a] < 0 ? 0.f : float(std::max(0, lo[a] * kBrick - 1));
             box_hi_[a] = hi[a] < 0 ? -1.f : float(std::min(geom_.dims[a] - 1, (hi[a] + 1) * kBrick + 1)) - 1e-3f;
         }
-        frontier_ = frontier_bricks(brick_visible_);
+        frontier_ = frontier_bricks(brick_visible_, nb_);
         alpha_step_for_ = -1.0;
         iso_q_ = -1.f;
         int iso_i = -1;
@@ -188,90 +188,18 @@ public:
             iso_brick_distance_ = brick_chebyshev_distance(iso_visible, nb_, kMaxBrickDistance);
             const uint16_t level = uint16_t(iso_i);
             iso_cell_bits_ = cell_bits_where(iso_visible, [&](uint16_t, uint16_t mx) { return mx >= level; });
-            iso_frontier_ = frontier_bricks(iso_visible);
+            iso_frontier_ = frontier_bricks(iso_visible, nb_);
         }
     }
 
-    /// The bricks of `visible` that a ray from outside can enter first: those with a brick
-    /// outside the set (or the grid) among their 26 neighbours.
-    std::vector<std::array<int, 3>> frontier_bricks(const std::vector<uint8_t>& visible) const {
-        std::vector<std::array<int, 3>> out;
-        auto vis = [&](int x, int y, int z) {
-            if (x < 0 || y < 0 || z < 0 || x >= nb_[0] || y >= nb_[1] || z >= nb_[2]) return false;
-            return visible[(size_t(z) * nb_[1] + y) * nb_[0] + x] != 0;
-        };
-        for (int bz = 0; bz < nb_[2]; ++bz)
-            for (int by = 0; by < nb_[1]; ++by)
-                for (int bx = 0; bx < nb_[0]; ++bx) {
-                    if (!vis(bx, by, bz)) continue;
-                    bool inner = true;
-                    for (int dz = -1; dz <= 1 && inner; ++dz)
-                        for (int dy = -1; dy <= 1 && inner; ++dy)
-                            for (int dx = -1; dx <= 1 && inner; ++dx) inner = vis(bx + dx, by + dy, bz + dz);
-                    if (!inner) out.push_back({bx, by, bz});
-                }
-        return out;
-    }
-
-    /// Where each ray may start (see start_z_). False when it cannot be bounded this frame (the
-    /// camera inside the box, or a frontier brick reaching behind the camera).
-    bool build_start_map(const Pose& T, const std::vector<std::array<int, 3>>& frontier, const Eigen::Vector3f& cam_index) {
+    /// The start map for this frame: false when rays must start at the box (the camera inside
+    /// the box around the visible bricks, or a frontier brick reaching behind it).
+    bool start_map_for(const Pose& T, const std::vector<std::array<int, 3>>& frontier, const Eigen::Vector3f& cam_index) {
         bool inside = true;
         for (int a = 0; a < 3; ++a) inside = inside && cam_index[a] >= box_lo_[a] - 1.f && cam_index[a] <= box_hi_[a] + 1.f;
-        if (inside) return false;
-        if (frontier.empty() || start_cells_x_ < 1) return false;
-        const Eigen::Matrix4f M = (T * geom_.world_from_index().matrix()).cast<float>();  // camera from index
-        std::fill(start_z_.begin(), start_z_.end(), std::numeric_limits<float>::infinity());
-        for (const auto& b : frontier) {
-            float zmin = std::numeric_limits<float>::infinity();
-            float xlo = zmin, ylo = zmin, xhi = -zmin, yhi = -zmin;
-            for (int c = 0; c < 8; ++c) {
-                const Eigen::Vector4f corner(float((b[0] + (c & 1)) << kBrickShift), float((b[1] + ((c >> 1) & 1)) << kBrickShift),
-                                             float((b[2] + ((c >> 2) & 1)) << kBrickShift), 1.f);
-                const Eigen::Vector4f pc = M * corner;
-                if (!(pc.z() > 1e-3f)) return false;  // reaches behind the camera: no bound this frame
-                zmin = std::min(zmin, pc.z());
-                const float x = pc.x() / pc.z(), y = pc.y() / pc.z();
-                xlo = std::min(xlo, x), xhi = std::max(xhi, x), ylo = std::min(ylo, y), yhi = std::max(yhi, y);
-            }
-            // A little wider than the corners' box, for the rounding of the rays' coordinates.
-            xlo -= 1e-4f, ylo -= 1e-4f, xhi += 1e-4f, yhi += 1e-4f;
-            const int cx0 = std::max(0, int(std::floor((xlo - start_x0_) * start_inv_cell_)));
-            const int cx1 = std::min(start_cells_x_ - 1, int(std::floor((xhi - start_x0_) * start_inv_cell_)));
-            const int cy0 = std::max(0, int(std::floor((ylo - start_y0_) * start_inv_cell_)));
-            const int cy1 = std::min(start_cells_y_ - 1, int(std::floor((yhi - start_y0_) * start_inv_cell_)));
-            for (int cy = cy0; cy <= cy1; ++cy)
-                for (int cx = cx0; cx <= cx1; ++cx) {
-                    float& z = start_z_[size_t(cy) * size_t(start_cells_x_) + size_t(cx)];
-                    z = std::min(z, zmin);
-                }
-        }
-        return true;
-    }
-
-    /// The grid over the rays' normalised coordinates (x/z, y/z) that start_z_ lives on, and
-    /// each pixel's cell in it; made with the rays.
-    void make_start_grid(const Intrinsics& K) {
-        float xlo = std::numeric_limits<float>::infinity(), ylo = xlo, xhi = -xlo, yhi = -xlo;
-        for (const auto& r : rays_) {
-            const float x = r.x() / r.z(), y = r.y() / r.z();
-            xlo = std::min(xlo, x), xhi = std::max(xhi, x), ylo = std::min(ylo, y), yhi = std::max(yhi, y);
-        }
-        // About one cell per 4x4 pixels: finer costs more splatting, coarser starts rays earlier.
-        const float cell = std::max((xhi - xlo) / float(std::max(1, K.width / 4)), 1e-6f);
-        start_inv_cell_ = 1.f / cell;
-        start_x0_ = xlo;
-        start_y0_ = ylo;
-        start_cells_x_ = int(std::floor((xhi - xlo) * start_inv_cell_)) + 1;
-        start_cells_y_ = int(std::floor((yhi - ylo) * start_inv_cell_)) + 1;
-        start_z_.assign(size_t(start_cells_x_) * size_t(start_cells_y_), 0.f);
-        ray_cell_.resize(rays_.size());
-        for (size_t i = 0; i < rays_.size(); ++i) {
-            const float x = rays_[i].x() / rays_[i].z(), y = rays_[i].y() / rays_[i].z();
-            const int cx = std::clamp(int(std::floor((x - xlo) * start_inv_cell_)), 0, start_cells_x_ - 1);
-            const int cy = std::clamp(int(std::floor((y - ylo) * start_inv_cell_)), 0, start_cells_y_ - 1);
-            ray_cell_[i] = uint32_t(cy * start_cells_x_ + cx);
-        }
+        if (inside || frontier.empty()) return false;
+        start_map_.clear();
+        return start_map_.add(T * geom_.world_from_index().matrix(), frontier, kBrick);
     }
 
     /// One bit per trilinear cell (brick-major) inside the bricks marked in `bricks`: set where
@@ -319,7 +247,7 @@ public:
             rays_ = pixel_rays(K);
             for (auto& r : rays_) r = r.normalized();  // cast() wants unit directions
             rays_K_ = K;
-            make_start_grid(K);
+            start_map_.set_rays(rays_, K.width);
         }
         out.width = K.width;
         out.height = K.height;
@@ -344,7 +272,7 @@ public:
         const bool iso_skip = opt.surface_only && !iso_cell_bits_.empty();
         f.brick_distance = iso_skip ? iso_brick_distance_.data() : brick_distance_.data();
         f.cell_bits = iso_skip ? iso_cell_bits_.data() : cell_bits_.data();
-        f.start_z = opt.ray_start_map && build_start_map(T, iso_skip ? iso_frontier_ : frontier_, f.cam_index) ? start_z_.data() : nullptr;
+        f.start_map = opt.ray_start_map && start_map_for(T, iso_skip ? iso_frontier_ : frontier_, f.cam_index) ? &start_map_ : nullptr;
         const int w = K.width;
         // Square-ish tiles: neighbouring rays in both directions read the same bricks, which
         // a row strip of the same pixel count does not (fewer cache misses on a 32 MB volume).
@@ -377,7 +305,7 @@ private:
         Eigen::Vector3f light_world;  // unit, scene towards the light (directional only)
         const uint8_t* brick_distance;  // the empty-space maps this frame steps with (borrowed)
         const uint64_t* cell_bits;
-        const float* start_z;  // per start cell, the nearest camera depth of a frontier brick; null: none
+        const RayStartMap* start_map;  // where rays may start (borrowed); null: at the box
     };
 
     // Trilinear sample of the quantised volume at index-space p (must be inside [0, d-1)).
@@ -437,7 +365,7 @@ private:
             // depth z lies at t = z / dir_z along it: no lattice point before that can show
             // anything, so the ray starts there (the same lattice, the same picture).
             // (0.05 mm earlier for rounding.)
-            if (f.start_z) t0 = std::max(t0, f.start_z[ray_cell_[px]] / dir_cam.z() - 0.05f);
+            if (f.start_map) t0 = std::max(t0, f.start_map->start_z(px) / dir_cam.z() - 0.05f);
             float t = std::ceil(t0 / step) * step;
             const float lut_scale = 1.f;
             const bool grad_op = baked_.uses_gradient();
@@ -579,12 +507,7 @@ private:
     std::vector<Eigen::Vector3f> rays_;
     Intrinsics rays_K_;
     std::vector<std::array<int, 3>> frontier_, iso_frontier_;  // frontier bricks of the visible / surface-level sets
-    // The ray start map: a grid over normalised image coordinates, start_z_ the nearest camera
-    // depth of a frontier brick whose projection touches each cell (rebuilt each frame).
-    std::vector<float> start_z_;
-    std::vector<uint32_t> ray_cell_;  // per pixel, its cell
-    int start_cells_x_ = 0, start_cells_y_ = 0;
-    float start_x0_ = 0, start_y0_ = 0, start_inv_cell_ = 1;
+    RayStartMap start_map_;  // rebuilt each frame
 };
 
 }  // namespace

@@ -123,6 +123,49 @@ TEST(GlFusion, LayerTransformEqualsMovingTheCamera) {
     EXPECT_LE(compare(a, c).mean_abs_rgb[1], 2.0);
 }
 
+TEST(GlFusion, RayStartMapDoesNotChangePixels) {
+    // Two layers, the second moved and off-centre, seen from far, from close and from inside
+    // the first layer's box, with and without lens distortion: starting rays at the nearest
+    // frontier brick of either layer gives the pixels of starting them at the boxes.
+    CF_REQUIRE_GL();
+    const Volume v = sphere_volume(48);
+    const auto tf = preset_transfer_function("cortex_t1");
+    Pose M = Pose::Identity();
+    M.topLeftCorner<3, 3>() = Eigen::AngleAxisd(0.4, Eigen::Vector3d(1, 1, 0).normalized()).toRotationMatrix();
+    M.topRightCorner<3, 1>() = Eigen::Vector3d(18, -10, 6);
+    auto r = make_gl_fusion_renderer();
+    r->add_layer(v, tf, nullptr);
+    LayerSettings s;
+    s.T_scene_from_layer = M;
+    s.weight = 0.6;
+    r->add_layer(shifted(v, {9, 0, 0}), tf, nullptr, s);
+    const Eigen::Vector3d c = v.geom.center_world_mm();
+    Intrinsics K = small_camera(100, 80, 150);
+    Intrinsics Kd = K;
+    Kd.distortion = {-0.2, 0.05, 0.001, -0.001, 0};
+    int n = 0;
+    for (const auto& [T, Kv] : std::vector<std::pair<Pose, const Intrinsics*>>{
+             {look_at(c, {0.3, 0.2, 1}, 260), &K}, {look_at(c, {-1, 0.4, 0.2}, 90), &K}, {look_at(c, {0.1, 1, 0.2}, 25), &K},
+             {look_at(c, {0.5, -0.3, 1}, 180), &Kd}})
+        for (const bool surface_only : {false, true}) {
+            RenderOptions with, without;
+            with.surface_only = without.surface_only = surface_only;
+            without.ray_start_map = false;
+            RenderImage a, b;
+            r->render(*Kv, T, with, a);
+            r->render(*Kv, T, without, b);
+            const ImageDiff d = compare(a, b);
+            size_t covered = 0;
+            for (uint8_t cv : a.coverage) covered += cv;
+            EXPECT_GT(covered, 200u) << "view " << n;
+            int max_rgb = 0;
+            for (size_t i = 0; i < a.rgb.size(); ++i) max_rgb = std::max(max_rgb, std::abs(int(a.rgb[i]) - int(b.rgb[i])));
+            EXPECT_EQ(max_rgb, 0) << "view " << n << " surface_only " << surface_only << " " << d;
+            EXPECT_GE(d.coverage_agreement, 1.0) << "view " << n << " " << d;
+            ++n;
+        }
+}
+
 // A camera-facing square of `half_mm` at camera depth z_mm, in world coordinates, coloured.
 // Centred on the ray of `pixel` when given (else the optical axis).
 OpaqueMesh square_at_depth(const Pose& T, double z_mm, double half_mm, const Eigen::Vector3f& colour,

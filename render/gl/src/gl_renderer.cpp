@@ -75,12 +75,14 @@ struct Layer {
     float grad_scale = 1.f;
     std::array<float, 3> box_lo{}, box_hi{};
     std::vector<uint8_t> brick_visible;
+    std::vector<std::array<int, 3>> frontier;  // frontier_bricks(brick_visible): where rays enter it
 };
 
 struct RaycastProgram {
     Program prog;
     GLint R = -1, cam = -1, ifw = -1, dims = -1, box_lo = -1, box_hi = -1, weight = -1, grad_scale = -1, grad_n = -1,
-          grad_pts = -1, iso = -1, step = -1, ambient = -1, diffuse = -1, term = -1, cov = -1, shading = -1, has_mesh = -1, directional = -1, light_world = -1, surface_only = -1;
+          grad_pts = -1, iso = -1, step = -1, ambient = -1, diffuse = -1, term = -1, cov = -1, shading = -1, has_mesh = -1, directional = -1, light_world = -1, surface_only = -1,
+          start_on = -1, start_origin = -1, start_inv_cell = -1, start_cells = -1;
 };
 
 class GlRenderer final : public FusionRenderer {
@@ -369,6 +371,26 @@ public:
                 glUniform3f(P.light_world, L.x(), L.y(), L.z());
             }
             glUniform1i(P.has_mesh, mesh_triangles_ > 0 ? 1 : 0);
+            // Where rays may start (core's RayStartMap, as the CPU ray caster): the drawn layers'
+            // frontier bricks projected on the CPU, a few thousand cells in a storage buffer.
+            const bool start_on = opt.ray_start_map && n_drawn > 0 && start_map_for(T, drawn, n_drawn);
+            glUniform1i(P.start_on, start_on ? 1 : 0);
+            if (start_on) {
+                glUniform2f(P.start_origin, start_map_.x0(), start_map_.y0());
+                glUniform1f(P.start_inv_cell, start_map_.inv_cell());
+                glUniform2i(P.start_cells, start_map_.cells_x(), start_map_.cells_y());
+                const auto& cells = start_map_.cells();
+                const GLsizeiptr bytes = GLsizeiptr(cells.size() * sizeof(float));
+                if (!start_buf_.get() || bytes != start_buf_bytes_) {
+                    start_buf_.reset(gen_buffer());
+                    glBindBuffer(GL_SHADER_STORAGE_BUFFER, start_buf_.get());
+                    glBufferData(GL_SHADER_STORAGE_BUFFER, bytes, nullptr, GL_DYNAMIC_DRAW);
+                    start_buf_bytes_ = bytes;
+                }
+                glBindBuffer(GL_SHADER_STORAGE_BUFFER, start_buf_.get());
+                glBufferSubData(GL_SHADER_STORAGE_BUFFER, 0, bytes, cells.data());
+                glBindBufferBase(GL_SHADER_STORAGE_BUFFER, 0, start_buf_.get());
+            }
             glActiveTexture(GL_TEXTURE0);
             glBindTexture(GL_TEXTURE_2D, rays_.get());
             glActiveTexture(GL_TEXTURE9);
@@ -389,6 +411,25 @@ private:
     static void set_nearest(GLenum target) {
         glTexParameteri(target, GL_TEXTURE_MIN_FILTER, GL_NEAREST);
         glTexParameteri(target, GL_TEXTURE_MAG_FILTER, GL_NEAREST);
+    }
+
+    /// The start map for this frame over the drawn layers: false when rays must start at the
+    /// box (the camera inside a layer's box, or a frontier brick reaching behind it).
+    bool start_map_for(const Pose& T, const std::array<const Layer*, kMaxLayers>& drawn, int n_drawn) {
+        if (start_map_.empty()) return false;
+        start_map_.clear();
+        const Eigen::Vector4d cam_scene = T.inverse().col(3);
+        for (int l = 0; l < n_drawn; ++l) {
+            const Layer& L = *drawn[size_t(l)];
+            const Eigen::Matrix4d index_from_scene = L.geom.index_from_world().matrix() * L.settings.T_scene_from_layer.inverse();
+            const Eigen::Vector4d o = index_from_scene * cam_scene;
+            bool inside = true;
+            for (int a = 0; a < 3; ++a) inside = inside && o[a] >= L.box_lo[a] - 1.0 && o[a] <= L.box_hi[a] + 1.0;
+            if (inside) return false;
+            if (L.frontier.empty()) continue;
+            if (!start_map_.add(T * index_from_scene.inverse(), L.frontier, kBrick)) return false;
+        }
+        return true;
     }
 
     void check_layer(int layer) const {
@@ -425,6 +466,10 @@ private:
         P.surface_only = loc("u_surface_only");
         P.light_world = loc("u_light_world");
         P.has_mesh = loc("u_has_mesh");
+        P.start_on = loc("u_start_on");
+        P.start_origin = loc("u_start_origin");
+        P.start_inv_cell = loc("u_start_inv_cell");
+        P.start_cells = loc("u_start_cells");
         return programs_.emplace(layers, std::move(P)).first->second;
     }
 
@@ -467,6 +512,7 @@ private:
         // caster does, and crosses the empty cube around it in one jump: on llvmpipe every
         // iteration of the search loop costs all lanes of a SIMD group.
         const std::vector<uint8_t> distance = brick_chebyshev_distance(L.brick_visible, L.nb, kMaxBrickDistance);
+        L.frontier = frontier_bricks(L.brick_visible, L.nb);
         glBindTexture(GL_TEXTURE_3D, L.bricks.get());
         glPixelStorei(GL_UNPACK_ALIGNMENT, 1);
         glTexSubImage3D(GL_TEXTURE_3D, 0, 0, 0, 0, L.nb[0], L.nb[1], L.nb[2], GL_RED_INTEGER, GL_UNSIGNED_BYTE,
@@ -538,6 +584,9 @@ private:
             glTexSubImage2D(GL_TEXTURE_2D, 0, 0, 0, K.width, K.height, GL_RGBA, GL_FLOAT, ray_buf_.data());
             rays_K_ = K;
             rays_valid_ = true;
+            std::vector<Eigen::Vector3f> unit(rays.size());
+            for (size_t i = 0; i < rays.size(); ++i) unit[i] = rays[i].normalized();
+            start_map_.set_rays(unit, K.width);
         }
     }
 
@@ -604,6 +653,9 @@ private:
     std::vector<std::unique_ptr<Layer>> layers_;
     int uploads_ = 0;
     Texture lut_, rays_;
+    RayStartMap start_map_;  // rays made with rays_, cells rebuilt each frame
+    Buffer start_buf_;       // its cells for the shader (binding 0)
+    GLsizeiptr start_buf_bytes_ = 0;
     std::vector<float> ray_buf_;
     Intrinsics rays_K_;
     bool rays_valid_ = false;

@@ -4,6 +4,7 @@
 // A renderer owns a prepared copy of the volume (quantised, with an empty-space map) and
 // renders it from a pinhole camera pose. Thread contract: one render() at a time per
 // renderer; distinct renderers are independent (the core is re-entrant).
+#include <Eigen/Core>
 #include <cstdint>
 #include <memory>
 #include <vector>
@@ -72,5 +73,46 @@ std::unique_ptr<Renderer> make_cpu_renderer(const Volume& volume, const Transfer
 /// the empty cube of bricks [b - (d - 1), b + d) in one jump.
 std::vector<uint8_t> brick_chebyshev_distance(const std::vector<uint8_t>& visible, const std::array<int, 3>& n_bricks,
                                               int cap);
+
+/// The bricks of `visible` (a grid of `n_bricks`, x fastest) with a brick outside the set, or
+/// outside the grid, among their 26 neighbours: a ray from outside the set enters it through one
+/// of them.
+std::vector<std::array<int, 3>> frontier_bricks(const std::vector<uint8_t>& visible, const std::array<int, 3>& n_bricks);
+
+/// Where rays may start, shared by the ray casters (CPU and GLSL). Frontier bricks are
+/// projected onto a grid over the rays' normalised coordinates (x/z, y/z; about one cell per
+/// 4x4 pixels), each cell keeping the nearest camera depth z of a brick that touches it. A ray
+/// with unit direction d meets no visible brick before t = z / d.z, so it may start on the first
+/// lattice point after that: the same samples that show anything, the same picture. Exact with
+/// lens distortion, since the rays are undistorted. Valid only while the camera is outside the
+/// visible bricks (callers check their box). Thread contract: one frame at a time.
+class RayStartMap {
+public:
+    /// The grid for these unit camera-frame rays, one per pixel (pixel_rays(K), normalised).
+    void set_rays(const std::vector<Eigen::Vector3f>& unit_rays, int width);
+    /// Begins a frame: no brick anywhere (every start at infinity).
+    void clear();
+    /// Adds the frontier bricks (edge `brick_voxels`) of a volume whose voxel index maps to the
+    /// camera frame by `T_camera_from_index`. False when one reaches behind the camera: then no
+    /// ray may start late this frame.
+    bool add(const Eigen::Matrix4d& T_camera_from_index, const std::vector<std::array<int, 3>>& frontier, int brick_voxels);
+    /// The camera depth (mm) before which the ray of pixel `px` meets no frontier brick.
+    float start_z(size_t px) const { return z_[cell_[px]]; }
+    // The grid, for the GLSL ray caster: cells_x() * cells_y() depths, row-major; a ray's cell
+    // is floor((x/z - x0, y/z - y0) * inv_cell), clamped to the grid.
+    int cells_x() const { return nx_; }
+    int cells_y() const { return ny_; }
+    float x0() const { return x0_; }
+    float y0() const { return y0_; }
+    float inv_cell() const { return inv_cell_; }
+    const std::vector<float>& cells() const { return z_; }
+    bool empty() const { return nx_ == 0; }
+
+private:
+    std::vector<float> z_;         // per cell
+    std::vector<uint32_t> cell_;   // per pixel
+    int nx_ = 0, ny_ = 0;
+    float x0_ = 0, y0_ = 0, inv_cell_ = 1;
+};
 
 }  // namespace cf

@@ -1,0 +1,89 @@
+// The ray start map shared by the CPU and GLSL ray casters (renderer.hpp).
+#include <algorithm>
+#include <cmath>
+#include <limits>
+
+#include "cortexfuse/core/renderer.hpp"
+
+namespace cf {
+
+std::vector<std::array<int, 3>> frontier_bricks(const std::vector<uint8_t>& visible, const std::array<int, 3>& n) {
+    std::vector<std::array<int, 3>> out;
+    auto vis = [&](int x, int y, int z) {
+        if (x < 0 || y < 0 || z < 0 || x >= n[0] || y >= n[1] || z >= n[2]) return false;
+        return visible[(size_t(z) * size_t(n[1]) + size_t(y)) * size_t(n[0]) + size_t(x)] != 0;
+    };
+    for (int bz = 0; bz < n[2]; ++bz)
+        for (int by = 0; by < n[1]; ++by)
+            for (int bx = 0; bx < n[0]; ++bx) {
+                if (!vis(bx, by, bz)) continue;
+                bool inner = true;
+                for (int dz = -1; dz <= 1 && inner; ++dz)
+                    for (int dy = -1; dy <= 1 && inner; ++dy)
+                        for (int dx = -1; dx <= 1 && inner; ++dx) inner = vis(bx + dx, by + dy, bz + dz);
+                if (!inner) out.push_back({bx, by, bz});
+            }
+    return out;
+}
+
+void RayStartMap::set_rays(const std::vector<Eigen::Vector3f>& rays, int width) {
+    float xlo = std::numeric_limits<float>::infinity(), ylo = xlo, xhi = -xlo, yhi = -xlo;
+    for (const auto& r : rays) {
+        const float x = r.x() / r.z(), y = r.y() / r.z();
+        xlo = std::min(xlo, x), xhi = std::max(xhi, x), ylo = std::min(ylo, y), yhi = std::max(yhi, y);
+    }
+    if (rays.empty()) {
+        nx_ = ny_ = 0;
+        return;
+    }
+    // About one cell per 4x4 pixels: finer costs more splatting, coarser starts rays earlier.
+    const float cell = std::max((xhi - xlo) / float(std::max(1, width / 4)), 1e-6f);
+    inv_cell_ = 1.f / cell;
+    x0_ = xlo;
+    y0_ = ylo;
+    nx_ = int(std::floor((xhi - xlo) * inv_cell_)) + 1;
+    ny_ = int(std::floor((yhi - ylo) * inv_cell_)) + 1;
+    z_.assign(size_t(nx_) * size_t(ny_), 0.f);
+    cell_.resize(rays.size());
+    for (size_t i = 0; i < rays.size(); ++i) {
+        const float x = rays[i].x() / rays[i].z(), y = rays[i].y() / rays[i].z();
+        const int cx = std::clamp(int(std::floor((x - xlo) * inv_cell_)), 0, nx_ - 1);
+        const int cy = std::clamp(int(std::floor((y - ylo) * inv_cell_)), 0, ny_ - 1);
+        cell_[i] = uint32_t(cy * nx_ + cx);
+    }
+}
+
+void RayStartMap::clear() { std::fill(z_.begin(), z_.end(), std::numeric_limits<float>::infinity()); }
+
+bool RayStartMap::add(const Eigen::Matrix4d& T_camera_from_index, const std::vector<std::array<int, 3>>& frontier, int edge) {
+    if (nx_ == 0) return false;
+    const Eigen::Matrix4f M = T_camera_from_index.cast<float>();
+    for (const auto& b : frontier) {
+        float zmin = std::numeric_limits<float>::infinity();
+        float xlo = zmin, ylo = zmin, xhi = -zmin, yhi = -zmin;
+        for (int c = 0; c < 8; ++c) {
+            const Eigen::Vector4f corner(float((b[0] + (c & 1)) * edge), float((b[1] + ((c >> 1) & 1)) * edge),
+                                         float((b[2] + ((c >> 2) & 1)) * edge), 1.f);
+            const Eigen::Vector4f pc = M * corner;
+            if (!(pc.z() > 1e-3f)) return false;  // reaches behind the camera: no bound this frame
+            zmin = std::min(zmin, pc.z());
+            const float x = pc.x() / pc.z(), y = pc.y() / pc.z();
+            xlo = std::min(xlo, x), xhi = std::max(xhi, x), ylo = std::min(ylo, y), yhi = std::max(yhi, y);
+        }
+        // The perspective image of a convex brick in front of the camera lies inside the box of
+        // its corners' images; a little wider for the rounding of the rays' coordinates.
+        xlo -= 1e-4f, ylo -= 1e-4f, xhi += 1e-4f, yhi += 1e-4f;
+        const int cx0 = std::max(0, int(std::floor((xlo - x0_) * inv_cell_)));
+        const int cx1 = std::min(nx_ - 1, int(std::floor((xhi - x0_) * inv_cell_)));
+        const int cy0 = std::max(0, int(std::floor((ylo - y0_) * inv_cell_)));
+        const int cy1 = std::min(ny_ - 1, int(std::floor((yhi - y0_) * inv_cell_)));
+        for (int cy = cy0; cy <= cy1; ++cy)
+            for (int cx = cx0; cx <= cx1; ++cx) {
+                float& z = z_[size_t(cy) * size_t(nx_) + size_t(cx)];
+                z = std::min(z, zmin);
+            }
+    }
+    return true;
+}
+
+}  // namespace cf
