@@ -49,12 +49,12 @@ FusedParts fused_parts(CaseStore& st, std::int64_t case_id, std::optional<std::i
     bool t1 = false;
     for (const auto& r : rec.results)
         if (r.kind == "plan_brain_mask" && (!f.plan_mask || r.id > f.plan_mask->id)) f.plan_mask = r;
-    for (const auto& v : rec.volumes) {
-        if (v.modality == Modality::T1 && (f.reg.volume_id ? v.id == *f.reg.volume_id : (!t1 || v.id > f.t1.id))) {
-            f.t1 = v;
+    for (const auto& vol : rec.volumes) {
+        if (vol.modality == Modality::T1 && (f.reg.volume_id ? vol.id == *f.reg.volume_id : (!t1 || vol.id > f.t1.id))) {
+            f.t1 = vol;
             t1 = true;
         }
-        if (v.modality == Modality::mask && (!f.mask_volume || v.id > f.mask_volume->id)) f.mask_volume = v;
+        if (vol.modality == Modality::mask && (!f.mask_volume || vol.id > f.mask_volume->id)) f.mask_volume = vol;
     }
     if (!t1) throw ApiError(409, "conflict", c + ": no T1 volume");
     return f;
