@@ -10,6 +10,7 @@
 #include "cortexfuse/core/evaluation.hpp"
 #include "cortexfuse/core/phantom.hpp"
 #include "cortexfuse/core/registration.hpp"
+#include "../remove_dir_guard.hpp"
 
 namespace fs = std::filesystem;
 using namespace cf;
@@ -35,13 +36,7 @@ const Fixture& fixture() {
         return x;
     }();
     // The generated case is read into memory above; its folder goes when the process ends.
-    static const struct DirRemover {
-        fs::path dir;
-        ~DirRemover() {
-            std::error_code ec;
-            fs::remove_all(dir, ec);
-        }
-    } remover{f.dir};
+    static const cf::test::RemoveDirGuard remover{f.dir};
     return f;
 }
 

@@ -12,6 +12,8 @@
 #include <opencv2/imgcodecs.hpp>
 #include <thread>
 
+#include "../remove_dir_guard.hpp"
+
 using namespace cf::daemon;
 using nlohmann::json;
 namespace fs = std::filesystem;
@@ -52,19 +54,11 @@ json get_json(int port, const std::string& path) {
     return r ? json::parse(r->body, nullptr, false) : json();
 }
 
-struct StateDirGuard {
-    fs::path dir;
-    ~StateDirGuard() {
-        std::error_code ec;
-        fs::remove_all(dir, ec);
-    }
-};
-
 }  // namespace
 
 TEST(CameraLive, SimulatedCameraFramesArriveAsJpegAtMostTenASecondAndStopWhenNobodyPolls) {
     const fs::path state = fs::temp_directory_path() / ("cf_daemon_live_" + std::to_string(::getpid()));
-    const StateDirGuard guard{state};  // removed on an early ASSERT too
+    const cf::test::RemoveDirGuard guard{state};  // removed on an early ASSERT too
     Daemon d(parse_config(config(state, "sim"), "test"));
     d.start();
     const int port = d.port();
@@ -145,7 +139,7 @@ TEST(CameraLive, SimulatedCameraFramesArriveAsJpegAtMostTenASecondAndStopWhenNob
 
 TEST(CameraLive, WithoutACameraAnswers503) {
     const fs::path state = fs::temp_directory_path() / ("cf_daemon_live_none_" + std::to_string(::getpid()));
-    const StateDirGuard guard{state};  // removed on an early ASSERT too
+    const cf::test::RemoveDirGuard guard{state};  // removed on an early ASSERT too
     Daemon d(parse_config(config(state, "none"), "test"));
     d.start();
     const Frame f = get_live(d.port());

@@ -13,6 +13,7 @@
 #include <opencv2/imgcodecs.hpp>
 
 #include "../../cli/process.hpp"
+#include "../../remove_dir_guard.hpp"
 #include "cortexfuse/core/case.hpp"
 #include "cortexfuse/core/overlay.hpp"
 #include "cortexfuse/core/phantom.hpp"
@@ -103,13 +104,7 @@ const Planned& planned() {
         return r;
     }();
     // The folder goes when the test program ends.
-    static const struct RemoveAtExit {
-        fs::path dir;
-        ~RemoveAtExit() {
-            std::error_code ec;
-            fs::remove_all(dir, ec);
-        }
-    } remove_at_exit{w.dir};
+    static const cf::test::RemoveDirGuard remove_at_exit{w.dir};
     return w;
 }
 
