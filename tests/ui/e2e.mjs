@@ -447,6 +447,10 @@ try {
       const fx = Math.round(fb.x + fb.width / 2 - 60), fy = Math.round(fb.y + fb.height / 2);
       await touchDrag(Array.from({ length: 9 }, (_, i) => ({ x: fx + 15 * i, y: fy })));
       await page.waitForFunction(() => document.querySelector('[data-testid="fused-stage"]')?.dataset.atCamera === "false", null, { timeout: 30000 });
+      // The turned view's full-size picture (previews while the finger moved), and no fling left
+      // from the drag: a tap during a fling makes no click in chromium.
+      await page.waitForFunction(() => { const i = document.querySelector('[data-testid="fused-model"]'); return i?.dataset.full === "true" && Number(i.dataset.seq) === window.cfViewSeq(); }, null, { timeout: 30000 });
+      await page.waitForTimeout(400);
       await shot("12d-fused-turned");
       await page.getByTestId("fused-camera-view").tap();
       await page.waitForFunction(() => document.querySelector('[data-testid="fused-stage"]')?.dataset.atCamera === "true", null, { timeout: 30000 });

@@ -86,6 +86,10 @@ export async function tagsE2E({ page, step, expect, shot, checkTargets, caseId, 
   const fx = Math.round(sb.x + sb.width / 2 - 60), fy = Math.round(sb.y + sb.height / 2);
   await touchDrag(Array.from({ length: 9 }, (_, i) => ({ x: fx + 15 * i, y: fy })));
   await page.waitForFunction(() => document.querySelector('[data-testid="fused-stage"]')?.dataset.atCamera === "false", null, { timeout: 30000 });
+  // The turned view's full-size picture (previews while the finger moved), and no fling left
+  // from the drag: a tap during a fling makes no click in chromium.
+  await page.waitForFunction(() => { const i = document.querySelector('[data-testid="fused-model"]'); return i?.dataset.full === "true" && Number(i.dataset.seq) === window.cfViewSeq(); }, null, { timeout: 30000 });
+  await page.waitForTimeout(400);
   await page.waitForFunction(([l, x]) => Math.abs(Number(document.querySelector(`[data-testid="tag-marker"][data-label="${l}"]`)?.dataset.x) - x) > 5, [tag.label, x0], { timeout: 30000 });
   const x1 = Number(await page.locator(`[data-testid="tag-marker"][data-label="${tag.label}"]`).getAttribute("data-x"));
   step(`the view turned: marker ${tag.label} moved from x ${x0.toFixed(1)} to ${x1.toFixed(1)} view px`);

@@ -890,7 +890,7 @@ function caseFused(id: number, body: HTMLElement, alive: Alive, got: (c: CaseRec
         modelImg.dataset.layers = fv.layersShown;
         modelImg.dataset.seq = String(fv.seq);
         const u = URL.createObjectURL(blob as Blob); urls.push(u); modelImg.src = u;
-        while (urls.length > 4) URL.revokeObjectURL(urls.splice(1, 1)[0]);  // [0] is the photo's
+        while (urls.length > 12) URL.revokeObjectURL(urls.splice(1, 1)[0]);  // [0] is the photo's; the last few stay readable
         modelImg.dataset.full = String(full);
         modelImg.dataset.preset = fv.preset;
         modelImg.dataset.textured = "true";
