@@ -80,13 +80,13 @@ TEST(RenderStream, ABandedViewHasTheSamePixelsAndDepthAsAWholeOne) {
 TEST(RenderStream, ANewerViewOfTheStreamSupersedesTheOlderOne) {
     wait_for_volume(g_d.get());
     const json before = renderer_status();
-    // A slow view (the largest, 0.25 mm steps: seconds on the CPU), then a small one of the same
-    // stream while it is drawn or still queued: the slow one is given up.
+    // A slow view (the largest, 0.1 mm steps: about a second or more on the CPU), then a small one
+    // of the same stream while it is drawn or still queued: the slow one is given up.
     json slow = view(1280, 1024);
-    slow["sample_mm"] = 0.25;
+    slow["sample_mm"] = 0.1;
     slow["stream"] = "s1";
     auto fut = std::async(std::launch::async, [&] { return post("/api/render", slow); });
-    std::this_thread::sleep_for(std::chrono::milliseconds(300));
+    std::this_thread::sleep_for(std::chrono::milliseconds(60));
     json quick = view(160, 128, "anterior");
     quick["stream"] = "s1";
     const Reply q = post("/api/render", quick);
