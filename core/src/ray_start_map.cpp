@@ -1,5 +1,6 @@
 // The ray start map shared by the CPU and GLSL ray casters (renderer.hpp).
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <limits>
 
@@ -57,17 +58,25 @@ void RayStartMap::clear() { std::fill(z_.begin(), z_.end(), std::numeric_limits<
 
 bool RayStartMap::add(const Eigen::Matrix4d& T_camera_from_index, const std::vector<std::array<int, 3>>& frontier, int edge) {
     if (nx_ == 0) return false;
+    // Corners are affine in the brick's index: the camera-frame image of brick b's corner c is
+    // origin + b.x * ex + b.y * ey + b.z * ez + (c's offsets along ex, ey, ez), with ex, ey, ez the
+    // images of one brick edge along each axis. Eight adds a corner instead of a 4x4 product:
+    // a registration renders small frames, where the splat is a fixed cost per frame.
     const Eigen::Matrix4f M = T_camera_from_index.cast<float>();
+    const Eigen::Vector3f origin = M.col(3).head<3>();
+    const Eigen::Vector3f ex = M.col(0).head<3>() * float(edge), ey = M.col(1).head<3>() * float(edge), ez = M.col(2).head<3>() * float(edge);
+    std::array<Eigen::Vector3f, 8> offset;
+    for (int c = 0; c < 8; ++c) offset[size_t(c)] = float(c & 1) * ex + float((c >> 1) & 1) * ey + float((c >> 2) & 1) * ez;
     for (const auto& b : frontier) {
+        const Eigen::Vector3f p0 = origin + float(b[0]) * ex + float(b[1]) * ey + float(b[2]) * ez;
         float zmin = std::numeric_limits<float>::infinity();
         float xlo = zmin, ylo = zmin, xhi = -zmin, yhi = -zmin;
         for (int c = 0; c < 8; ++c) {
-            const Eigen::Vector4f corner(float((b[0] + (c & 1)) * edge), float((b[1] + ((c >> 1) & 1)) * edge),
-                                         float((b[2] + ((c >> 2) & 1)) * edge), 1.f);
-            const Eigen::Vector4f pc = M * corner;
+            const Eigen::Vector3f pc = p0 + offset[size_t(c)];
             if (!(pc.z() > 1e-3f)) return false;  // reaches behind the camera: no bound this frame
             zmin = std::min(zmin, pc.z());
-            const float x = pc.x() / pc.z(), y = pc.y() / pc.z();
+            const float inv_z = 1.f / pc.z();
+            const float x = pc.x() * inv_z, y = pc.y() * inv_z;
             xlo = std::min(xlo, x), xhi = std::max(xhi, x), ylo = std::min(ylo, y), yhi = std::max(yhi, y);
         }
         // The perspective image of a convex brick in front of the camera lies inside the box of
