@@ -100,8 +100,9 @@ public:
     /// image, 422 when the ray hits no surface, 503 without a volume.
     nlohmann::json pick(const nlohmann::json& request, std::shared_ptr<const CaseRenderSource> src = nullptr);
     /// A view of a stream (request field `stream`) larger than twice this is drawn in bands of
-    /// about this many pixels, so that a newer view of the stream waits at most one band.
-    static constexpr int kBandPixels = 65536;
+    /// about this many pixels, so that a newer view of the stream waits at most one band (64k
+    /// pixels: a drag during a 930x562 refine showed its preview after 198 ms median on llvmpipe).
+    static constexpr int kBandPixels = 24576;
     /// Prepared per-case renderers kept on the render thread.
     static constexpr std::size_t kCaseRenderersCached = 2;
     /// Volumes uploaded to multimodal (fusion) renderers so far: a TF, weight or visibility
