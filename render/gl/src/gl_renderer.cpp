@@ -570,10 +570,11 @@ private:
         if (!rays_valid_ || K.fx != rays_K_.fx || K.fy != rays_K_.fy || K.cx != rays_K_.cx || K.cy != rays_K_.cy ||
             K.distortion != rays_K_.distortion) {
             // Undistorted unit rays, computed once per camera (as the CPU ray caster does).
-            const auto rays = pixel_rays(K);
+            auto rays = pixel_rays(K);
+            for (auto& r : rays) r.normalize();  // once: for the texture and the start map
             ray_buf_.resize(rays.size() * 4);
             for (size_t i = 0; i < rays.size(); ++i) {
-                const Eigen::Vector3f r = rays[i].normalized();
+                const Eigen::Vector3f& r = rays[i];
                 ray_buf_[4 * i] = r.x();
                 ray_buf_[4 * i + 1] = r.y();
                 ray_buf_[4 * i + 2] = r.z();
@@ -584,9 +585,7 @@ private:
             glTexSubImage2D(GL_TEXTURE_2D, 0, 0, 0, K.width, K.height, GL_RGBA, GL_FLOAT, ray_buf_.data());
             rays_K_ = K;
             rays_valid_ = true;
-            std::vector<Eigen::Vector3f> unit(rays.size());
-            for (size_t i = 0; i < rays.size(); ++i) unit[i] = rays[i].normalized();
-            start_map_.set_rays(unit, K.width);
+            start_map_.set_rays(rays, K.width);
         }
     }
 
