@@ -6,14 +6,19 @@
 // function as a 4096-entry table, two bisection steps and a secant step to the first crossing
 // of the reference layer's surface level (depth and shading there), Lambert headlight shading from the central-
 // difference gradient, front-to-back compositing, early termination, and empty-space skipping
-// over 8^3 bricks (a distance map: the empty cube around a brick in one jump), rays starting at
+// over CELL^3 cells (a distance map: the empty cube around a cell in one jump), rays starting at
 // the nearest frontier brick (u_start_z, core's RayStartMap). Image row v is
 // framebuffer row v (no flip; read back row by row).
 // Weighted fusion of several layers: see cortexfuse/core/fusion.hpp.
 #ifndef NLAYERS
 #define NLAYERS 1
 #endif
-#define BRICK 8
+// Empty-space skipping cells (CELL^3 voxels), defined by the renderer like NLAYERS: finer than
+// the CPU's 8^3 bricks (the box and the start map keep those), so the search loop, whose every
+// step costs all lanes of a SIMD group on llvmpipe, samples fewer empty points.
+#ifndef CELL
+#define CELL 8
+#endif
 #define FLT_BIG 3.402823e38
 
 layout(location = 0) out vec4 o_rgb;
@@ -23,7 +28,7 @@ layout(location = 3) out uint o_coverage;
 
 layout(binding = 0) uniform sampler2D u_rays;              // unit camera-frame ray per pixel
 layout(binding = 1) uniform sampler3D u_vol[NLAYERS];      // R16 unorm: quantised value / 65535
-layout(binding = 5) uniform usampler3D u_bricks[NLAYERS];  // per brick: Chebyshev distance in bricks to a visible one (0: visible)
+layout(binding = 5) uniform usampler3D u_bricks[NLAYERS];  // per CELL^3 cell: Chebyshev distance in cells to a visible one (0: visible)
 layout(binding = 9) uniform sampler2D u_lut;               // row l: layer l's rgb, opacity per mm
 layout(binding = 10) uniform sampler2D u_mesh_rgb;          // opaque geometry, drawn first
 layout(binding = 11) uniform sampler2D u_mesh_z;            // its camera-frame z (mm); 0: none
@@ -64,6 +69,10 @@ layout(std430, binding = 0) readonly buffer StartMap { float u_start_z[]; };
 float vol(int l, vec3 p) {
     return texture(u_vol[l], (p + 0.5) / u_dims[l]).r * 65535.0;
 }
+// The same sample at texture coordinates q = (p + 0.5) / u_dims[l] (the search loop steps in them).
+float volt(int l, vec3 q) {
+    return texture(u_vol[l], q).r * 65535.0;
+}
 
 float vol_clamped(int l, vec3 p) {
     return vol(l, clamp(p, vec3(0.0), u_dims[l] - 1.0 - 1e-3));
@@ -92,12 +101,18 @@ void main() {
 
     vec3 o[NLAYERS];
     vec3 d[NLAYERS];
+    vec3 oq[NLAYERS];     // o and d in texture coordinates
+    vec3 dq[NLAYERS];
+    vec3 inv_d[NLAYERS];  // 1 / d: the cell exits without divisions
     float lt0[NLAYERS];
     float lt1[NLAYERS];
     float t0 = FLT_BIG, t1 = -FLT_BIG;
     for (int l = 0; l < NLAYERS; ++l) {
         o[l] = (u_index_from_world[l] * vec4(u_cam_world, 1.0)).xyz;
         d[l] = mat3(u_index_from_world[l]) * dir_world;
+        oq[l] = (o[l] + 0.5) / u_dims[l];
+        dq[l] = d[l] / u_dims[l];
+        inv_d[l] = 1.0 / d[l];
         float a0 = 0.0, a1 = FLT_BIG;
         for (int a = 0; a < 3; ++a) {
             const float lo = u_box_lo[l][a], hi = u_box_hi[l][a];
@@ -158,14 +173,15 @@ void main() {
                     if (t < lt0[l]) { t_exit = min(t_exit, lt0[l]); continue; }
                     if (t > lt1[l]) continue;
                     const vec3 p = o[l] + t * d[l];
-                    const ivec3 b = ivec3(p) / BRICK;
+                    const ivec3 b = ivec3(p) / CELL;
                     const int dist = int(texelFetch(u_bricks[l], b, 0).r);
                     if (dist == 0) { visible = true; break; }
                     // Leave the empty cube of bricks [b - (dist - 1), b + dist) around this one.
-                    for (int a = 0; a < 3; ++a) {
-                        const float da = d[l][a];
-                        if (da > 1e-12) t_exit = min(t_exit, t + (float((b[a] + dist) * BRICK) - p[a]) / da);
-                        else if (da < -1e-12) t_exit = min(t_exit, t + (float((b[a] - dist + 1) * BRICK) - p[a]) / da);
+                    {
+                        // The exit plane of each axis (none where the ray runs parallel to it).
+                        const vec3 plane = vec3(mix(b - dist + 1, b + dist, greaterThan(d[l], vec3(0.0))) * CELL);
+                        const vec3 ta = mix(vec3(FLT_BIG), (plane - p) * inv_d[l], greaterThan(abs(d[l]), vec3(1e-12)));
+                        t_exit = min(t_exit, t + min(ta.x, min(ta.y, ta.z)));
                     }
                     t_exit = min(t_exit, lt1[l]);
                 }
@@ -176,7 +192,7 @@ void main() {
                 }
                 for (int l = 0; l < NLAYERS; ++l) {
                     if (lt1[l] <= lt0[l] || t < lt0[l] || t > lt1[l]) continue;
-                    const float s = vol(l, o[l] + t * d[l]);
+                    const float s = volt(l, oq[l] + t * dq[l]);
                     if (l == 0 && u_surface_only && !(s >= u_iso)) continue;
                     if (texelFetch(u_lut, ivec2(int(s + 0.5), l), 0).a * u_weight[l] > 0.0) found = true;
                 }
@@ -222,14 +238,15 @@ void main() {
                     const bool grad_op = u_grad_n[l] > 0;
                     if (u_shading || grad_op) {
                         vec3 gi;
-                        if (all(greaterThanEqual(p, vec3(1.0))) && all(lessThan(p, u_dims[l] - 2.0 - 1e-3))) {
-                            gi = texture(u_grad[l], (p + 0.5) / u_dims[l]).rgb;
-                        } else {
-                            // Within a voxel of the border: the CPU's clamped samples, as they are.
-                            gi = 0.5 * vec3(vol_clamped(l, p + vec3(1, 0, 0)) - vol_clamped(l, p - vec3(1, 0, 0)),
-                                            vol_clamped(l, p + vec3(0, 1, 0)) - vol_clamped(l, p - vec3(0, 1, 0)),
-                                            vol_clamped(l, p + vec3(0, 0, 1)) - vol_clamped(l, p - vec3(0, 0, 1)));
-                        }
+                        // The CPU's clamped central differences from the one fetch, no six-fetch
+                        // border path (llvmpipe runs both sides of a branch, so that cost every
+                        // sample): a refined point up to a voxel outside the grid (before the box)
+                        // has (1 + p) times the first voxel's difference along that axis
+                        // ((1 + dims - 1 - p) times the last's; none farther out), and the clamped
+                        // texture gives the other axes' clamping. Within a voxel of the far faces
+                        // the CPU clamps its forward sample 1e-3 voxel short of the last voxel:
+                        // its difference differs by 1e-3 of the last voxel step.
+                        gi = texture(u_grad[l], (p + 0.5) / u_dims[l]).rgb * clamp(min(1.0 + p, u_dims[l] - p), 0.0, 1.0);
                         const vec3 gw = transpose(mat3(u_index_from_world[l])) * gi;
                         const float gn = length(gw);
                         if (grad_op) a *= gradient_factor(l, gn * u_grad_scale[l]);
