@@ -153,6 +153,34 @@ TEST(TrackerSession, TxFallbackOnFirmwareThatNeedsIt) {
     }
 }
 
+// BEEP n while streaming: sent between two BX requests, answered by the device, and streaming
+// goes on without a recovery (issue 5's command list).
+TEST(TrackerSession, BeepReachesTheDeviceWhileStreaming) {
+    TrackerSimConfig sc;
+    TrackerSimulator sim(sc);
+    sim.start();
+    TrackerSession s(make_serial_transport(sim.slave_path()), fast_config(tools()));
+    s.start();
+    auto f = s.wait_frame(0, 5s);
+    ASSERT_TRUE(f.has_value()) << s.status().last_error;
+    EXPECT_EQ(sim.beeps(), 0u);
+    s.beep(3);
+    for (int i = 0; i < 100 && sim.beeps() == 0; ++i) std::this_thread::sleep_for(10ms);
+    EXPECT_EQ(sim.beeps(), 3u);
+    s.beep(12);  // clamped to the device's 1..9
+    for (int i = 0; i < 100 && sim.beeps() == 3; ++i) std::this_thread::sleep_for(10ms);
+    EXPECT_EQ(sim.beeps(), 12u);
+    const auto before = s.status();
+    f = s.wait_frame(f->sequence, 1s);
+    ASSERT_TRUE(f.has_value()) << "streaming went on after the beeps";
+    const auto st = s.status();
+    s.stop();
+    EXPECT_EQ(st.device_errors, 0u) << st.last_error;
+    EXPECT_EQ(st.resets, before.resets);
+    EXPECT_EQ(st.state, cf::tracker::TrackerStatus::State::streaming);
+    EXPECT_EQ(st.reconnects, before.reconnects);
+}
+
 TEST(TrackerSession, RecoversFromDisconnectAndPowerCycleOverPty) {
     TrackerSimConfig sc;
     sc.pty_link = (fs::temp_directory_path() / ("cf_tracker_link_" + std::to_string(::getpid()))).string();

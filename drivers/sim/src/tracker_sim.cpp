@@ -255,6 +255,7 @@ struct TrackerSimulator::Impl {
     std::vector<std::int64_t> restored;
     std::vector<Fault> injected;  // from other threads
     std::atomic<bool> stop{false};
+    std::atomic<std::uint64_t> beeps{0};  // BEEP n commands answered: the sum of n
     std::thread thread;
 
     // Held poses (TrackerSimulator::hold), oldest first; guarded by hold_mu (read by truth()
@@ -591,6 +592,7 @@ struct TrackerSimulator::Impl {
         if (n == "ECHO") return ascii(p);
         if (n == "BEEP") {
             if (p.size() != 1 || p[0] < '1' || p[0] > '9') return err(0x07);
+            beeps += std::uint64_t(p[0] - '0');
             return ascii("1");
         }
         if (n == "COMM") {
@@ -989,6 +991,7 @@ std::map<Fault, std::uint64_t> TrackerSimulator::fault_counts() const {
     std::lock_guard lk(impl_->mu);
     return impl_->counts;
 }
+std::uint64_t TrackerSimulator::beeps() const { return impl_->beeps.load(); }
 std::uint64_t TrackerSimulator::total_faults() const {
     std::uint64_t n = 0;
     for (const auto& [k, v] : fault_counts()) n += v;

@@ -113,6 +113,8 @@ public:
     std::optional<ToolTruth> truth(const std::string& part, std::uint32_t frame_number) const;
     std::map<Fault, std::uint64_t> fault_counts() const;
     std::uint64_t total_faults() const;
+    /// Beeps the device was asked for by valid BEEP commands (the sum of their n). Any thread.
+    std::uint64_t beeps() const;
     /// steady_ns times at which the link or the device came back after a disconnect or a power cycle.
     std::vector<std::int64_t> link_restored_ns() const;
     /// Scene control for workflows with ground truth (e.g. the pointer resting on a fiducial):
