@@ -37,6 +37,9 @@ void add_coreg_options(CLI::App* cmd, CoregParams& p, std::string& metric) {
     cmd->add_option("--seed", p.seed, "sampling seed")->capture_default_str();
     cmd->add_option("--min-overlap", p.min_overlap, "quality gate: fixed head inside moving FOV")->capture_default_str();
     cmd->add_option("--min-nmi", p.min_nmi, "quality gate: NMI after registration")->capture_default_str();
+    cmd->add_option("--clip-intensities", p.clip_intensities,
+                    "clip each image to its head's robust intensity range before registration (true/false)")
+        ->capture_default_str();
 }
 
 }  // namespace
@@ -101,11 +104,13 @@ void add_coregister(CLI::App& app) {
         std::string t1, out;
         int n = 3;
         uint64_t seed = 1;
-        double max_angle_deg = 10, max_shift_mm = 15, inplane_mm = 0.9, slice_mm = 2.0;
+        std::string kind = "ct";
+        double max_angle_deg = 10, max_shift_mm = 15, inplane_mm = 0.9, slice_mm = 2.0, voxel_mm = 3.0, blur_fwhm_mm = 4.0;
     };
     auto s = std::make_shared<SynthOpts>();
     auto* syn = app.add_subcommand("coregister-synth",
-                                   "Synthetic CT-like co-registration cases with truth from a real T1 (moving.nii.gz, truth.tfm)");
+                                   "Synthetic co-registration cases with truth from a real T1 (moving.nii.gz, truth.tfm): "
+                                   "CT-like (--kind ct) or mean-EPI-like (--kind epi: coarse, blurred, T2*-like contrast)");
     syn->add_option("T1", s->t1, "real T1 head volume")->required();
     syn->add_option("--out", s->out, "output folder (case_000, ...)")->required();
     syn->add_option("--n", s->n, "number of cases")->check(CLI::Range(1, 100))->capture_default_str();
@@ -114,14 +119,20 @@ void add_coregister(CLI::App& app) {
     syn->add_option("--max-shift-mm", s->max_shift_mm, "translation range per axis")->check(CLI::Range(0.0, 100.0))->capture_default_str();
     syn->add_option("--inplane-mm", s->inplane_mm, "CT-like in-plane voxel size")->capture_default_str();
     syn->add_option("--slice-mm", s->slice_mm, "CT-like slice thickness")->capture_default_str();
+    syn->add_option("--kind", s->kind, "ct or epi")->check(CLI::IsMember({"ct", "epi"}))->capture_default_str();
+    syn->add_option("--voxel-mm", s->voxel_mm, "EPI-like isotropic voxel size")->capture_default_str();
+    syn->add_option("--blur-fwhm-mm", s->blur_fwhm_mm, "EPI-like blur (Gaussian FWHM)")->capture_default_str();
     syn->callback([s] {
         run_guarded("coregister-synth", [s]() -> int {
             const Volume t1 = load_volume(s->t1);
             fs::create_directories(s->out);
             nlohmann::json list = nlohmann::json::array();
             for (int i = 0; i < s->n; ++i) {
-                const SyntheticCoregCase c = make_synthetic_ct_case(t1, s->seed * 1000 + uint64_t(i), s->max_angle_deg,
-                                                                    s->max_shift_mm, s->inplane_mm, s->slice_mm);
+                const uint64_t seed = s->seed * 1000 + uint64_t(i);
+                const SyntheticCoregCase c =
+                    s->kind == "epi"
+                        ? make_synthetic_epi_case(t1, seed, s->max_angle_deg, s->max_shift_mm, s->voxel_mm, s->blur_fwhm_mm)
+                        : make_synthetic_ct_case(t1, seed, s->max_angle_deg, s->max_shift_mm, s->inplane_mm, s->slice_mm);
                 char name[32];
                 std::snprintf(name, sizeof name, "case_%03d", i);
                 const fs::path dir = fs::path(s->out) / name;
@@ -129,6 +140,7 @@ void add_coregister(CLI::App& app) {
                 save_volume(c.moving, dir / "moving.nii.gz");
                 save_transform(c.T_moving_from_fixed, t1.geom.center_world_mm(), dir / "truth.tfm");
                 list.push_back({{"case", dir.string()},
+                                {"kind", s->kind},
                                 {"angles_deg", {c.angles_deg.x(), c.angles_deg.y(), c.angles_deg.z()}},
                                 {"translation_mm", {c.translation_mm.x(), c.translation_mm.y(), c.translation_mm.z()}}});
             }

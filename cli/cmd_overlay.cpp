@@ -1,6 +1,9 @@
 // cortexfuse overlay: the photo texture-mapped onto the brain surface with a registration
 // result; textured mesh (OBJ+MTL+PNG, GLB) and fused pictures.
+#include <algorithm>
 #include <chrono>
+#include <cstdio>
+#include <unistd.h>
 #include <filesystem>
 #include <iostream>
 #include <memory>
@@ -12,6 +15,7 @@
 #include "cortexfuse/core/error.hpp"
 #include "cortexfuse/core/fusion.hpp"
 #include "cortexfuse/core/overlay.hpp"
+#include "cortexfuse/core/plan.hpp"
 #include "cortexfuse/core/rasterizer.hpp"
 #include "cortexfuse/core/renderer.hpp"
 #include "cortexfuse/core/skull_strip.hpp"
@@ -23,6 +27,61 @@
 namespace fs = std::filesystem;
 
 namespace cf::cli {
+namespace {
+
+/// A mesh that does not lie on the case's brain (another patient's or another space's
+/// surface, a wrong unit): fewer than half of its vertices inside the brain mask's bounding
+/// box grown by 10 mm. Throws InputError naming the mesh.
+void check_mesh_on_brain(const SurfaceMesh& mesh, const std::string& what, const LabelVolume& mask) {
+    const auto& d = mask.geom.dims;
+    Eigen::Vector3d lo = Eigen::Vector3d::Constant(1e18), hi = -lo;
+    for (int k = 0; k < d[2]; ++k)
+        for (int j = 0; j < d[1]; ++j)
+            for (int i = 0; i < d[0]; ++i)
+                if (mask.at(i, j, k)) lo = lo.cwiseMin(Eigen::Vector3d(i, j, k)), hi = hi.cwiseMax(Eigen::Vector3d(i, j, k));
+    const Eigen::Vector3d grow = mask.geom.spacing_mm.cwiseInverse() * 10.0;
+    lo -= grow, hi += grow;
+    const Eigen::Affine3d I = mask.geom.index_from_world();
+    size_t in = 0;
+    for (const auto& v : mesh.vertices) {
+        const Eigen::Vector3d q = I * v.cast<double>();
+        in += (q.array() >= lo.array()).all() && (q.array() <= hi.array()).all();
+    }
+    const double f = mesh.vertices.empty() ? 0.0 : double(in) / double(mesh.vertices.size());
+    if (f < 0.5) {
+        char buf[64];
+        std::snprintf(buf, sizeof buf, "%.1f", f * 100);
+        throw InputError(what, std::string("absurd overlap with the case's brain: only ") + buf +
+                                   " % of its vertices lie within 10 mm of the brain mask's box (another patient's or "
+                                   "another space's surface?)");
+    }
+}
+
+/// The output folder is written through a staging folder inside it; the files are moved into
+/// place only when everything has been made, so a failed run leaves nothing (and removes the
+/// folder when it made it).
+struct StagedOutput {
+    fs::path final_dir, stage;
+    bool made_dir = false, done = false;
+    explicit StagedOutput(const fs::path& dir) : final_dir(dir) {
+        made_dir = !fs::exists(dir);
+        fs::create_directories(dir);
+        stage = dir / (".overlay.partial." + std::to_string(::getpid()));
+        fs::remove_all(stage);
+        fs::create_directories(stage);
+    }
+    void commit() {
+        for (const auto& e : fs::directory_iterator(stage)) fs::rename(e.path(), final_dir / e.path().filename());
+        done = true;
+    }
+    ~StagedOutput() {
+        std::error_code ec;
+        fs::remove_all(stage, ec);
+        if (!done && made_dir) fs::remove(final_dir, ec);  // only if empty
+    }
+};
+
+}  // namespace
 
 void add_overlay(CLI::App& app) {
     struct Opts {
@@ -82,6 +141,9 @@ void add_overlay(CLI::App& app) {
             } else {
                 mask = skull_strip(vol, {}, &bar.progress());
             }
+            if (mask.count_nonzero() == 0)
+                throw InputError(cs.brain_mask_path ? cs.brain_mask_path->string() : cs.volume_path.string() + " (skull strip)",
+                                 "the brain mask is empty: no brain to draw or to map the photo onto");
             // The plan's extra modalities, all on the plan's T1 grid, which must be the case's.
             struct Layer {
                 std::string name;
@@ -94,9 +156,21 @@ void add_overlay(CLI::App& app) {
             if (!o->plan.empty()) {
                 if (!fs::is_directory(plan)) throw InputError(o->plan, "--plan: not a folder");
                 const fs::path pm = plan / "brain_mask.nii.gz";
-                if (fs::exists(pm) && !load_mask(pm).geom.same_grid(vol.geom))
-                    throw InputError(o->plan, "the plan was made from another T1 (its grid differs from the case volume's "
-                                              "grid): plan the case's own volume");
+                if (fs::exists(pm)) {
+                    const LabelVolume plan_mask = load_mask(pm);
+                    if (!plan_mask.geom.same_grid(vol.geom))
+                        throw InputError(o->plan, "the plan was made from another T1 (its grid differs from the case volume's "
+                                                  "grid): plan the case's own volume");
+                    if (plan_mask.count_nonzero() == 0) throw InputError(pm.string(), "the plan's brain mask is empty");
+                }
+                // Another patient's T1 on an identical grid: plan.json keeps the T1's fingerprint.
+                if (fs::exists(plan / "plan.json")) {
+                    const nlohmann::json pj = read_json_file(plan / "plan.json");
+                    if (pj.contains("t1_fingerprint") && pj["t1_fingerprint"].is_string() &&
+                        pj["t1_fingerprint"].get<std::string>() != volume_fingerprint(vol))
+                        throw InputError(o->plan, "the plan was made from another T1 (its voxels differ from the case "
+                                                  "volume's: another patient's or another scan's plan): plan the case's own volume");
+                }
                 if (fs::exists(plan / "ct_on_t1.nii.gz") && o->ct_weight > 0)
                     extra.push_back({"ct", load_volume(plan / "ct_on_t1.nii.gz"), preset_transfer_function("ct_bone"),
                                      o->ct_weight});
@@ -106,10 +180,17 @@ void add_overlay(CLI::App& app) {
                                      fs::exists(tfp) ? load_transfer_function(tfp) : preset_transfer_function("fmri_hot"),
                                      o->fmri_weight});
                 }
-                for (const auto& L : extra)
+                for (const auto& L : extra) {
                     if (!L.volume.geom.same_grid(vol.geom))
                         throw InputError((plan / (L.name + "_on_t1.nii.gz")).string(),
                                          "not on the case volume's grid (the plan was made from another T1)");
+                    const bool any = std::any_of(L.volume.voxels.begin(), L.volume.voxels.end(),
+                                                 [&](float v) { return L.name == "ct" ? v > -1000.f : v != 0.f; });
+                    if (!any)
+                        throw InputError((plan / (L.name + "_on_t1.nii.gz")).string(),
+                                         L.name == "ct" ? "empty: the CT holds only air (-1000 HU) on the T1 grid"
+                                                        : "empty: no active voxel on the T1 grid");
+                }
             }
             SurfaceMesh mesh;
             const std::string mesh_path =
@@ -123,11 +204,28 @@ void add_overlay(CLI::App& app) {
                 sp.max_triangles = o->max_triangles;
                 mesh = build_brain_surface(vol, mask, sp, bar.progress());
             }
+            check_mesh_on_brain(mesh, mesh_path.empty() ? std::string("brain surface (built from the case volume)") : mesh_path,
+                                mask);
             const cv::Mat alpha = cs.roi ? roi_mask(*cs.roi, photo.cols, photo.rows) : cv::Mat();
-            const TextureMapping tm = map_texture(mesh, K, T, alpha);
+            TextureMapping tm;
+            try {
+                tm = map_texture(mesh, K, T, alpha);
+            } catch (const InputError& e) {
+                // Name the file the pose came from, not just "result pose".
+                if (e.input() == "result pose") throw InputError(o->result, std::string(e.what()).substr(e.input().size() + 2));
+                throw;
+            }
+            Eigen::Vector3d pivot = Eigen::Vector3d::Zero();
+            size_t np = 0;
+            for (size_t i = 0; i < mesh.vertices.size(); ++i)
+                if (tm.in_roi[i]) pivot += mesh.vertices[i].cast<double>(), ++np;
+            if (np == 0)
+                throw InputError(cs.roi_path ? cs.roi_path->string() : o->result,
+                                 "no visible surface inside the ROI with this pose (wrong result or ROI?)");
+            pivot /= double(np);
             const cv::Mat tex = texture_rgba(photo, alpha);
-            fs::create_directories(o->out);
-            const fs::path out(o->out);
+            StagedOutput staged(o->out);
+            const fs::path out = staged.stage;
             write_textured_obj(mesh, tm, tex, out / "textured_surface.obj");
             write_textured_glb(mesh, tm, tex, out / "textured_surface.glb");
 
@@ -169,13 +267,6 @@ void add_overlay(CLI::App& app) {
             }
             const double s = std::min(1.0, double(o->view_width) / K.width);
             const Intrinsics Kv = K.scaled(s);
-            Eigen::Vector3d pivot = Eigen::Vector3d::Zero();
-            size_t np = 0;
-            for (size_t i = 0; i < mesh.vertices.size(); ++i)
-                if (tm.in_roi[i]) pivot += mesh.vertices[i].cast<double>(), ++np;
-            if (np == 0)
-                throw InputError("roi", "no visible surface inside the ROI with this pose (wrong result or ROI?)");
-            pivot /= double(np);
             nlohmann::json views = nlohmann::json::array();
             auto view = [&](const std::string& name, const Pose& Tv) {
                 const cv::Mat img = render_fused(*renderer, mesh, tm, tex, Kv, Tv, o->opacity);
@@ -218,6 +309,7 @@ void add_overlay(CLI::App& app) {
                                       {"cast_back", casts},
                                       {"seconds", std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count()}};
             write_file_atomic(out / "overlay.json", j.dump(1));
+            staged.commit();
             std::cout << "overlay: " << tm.visible_count << " visible vertices, " << tm.roi_count << " in the ROI -> " << o->out
                       << "\n";
             return 0;

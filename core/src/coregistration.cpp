@@ -107,6 +107,24 @@ Eigen::Vector3d centroid(const LabelVolume& m) {
     return W * (s / double(n));
 }
 
+/// The volume's voxels clipped to [p0.5 - 0.25 span, p99.5] of its foreground's voxels
+/// (CoregParams::clip_intensities).
+std::vector<float> clipped_to_foreground_range(const Volume& v, const LabelVolume& fg) {
+    std::vector<float> inside;
+    inside.reserve(fg.count_nonzero());
+    for (size_t i = 0; i < v.voxels.size(); ++i)
+        if (fg.voxels[i]) inside.push_back(v.voxels[i]);
+    const auto [lo, hi] = robust_range(inside, 0.005, 0.995);
+    const float a = float(lo - 0.25 * (hi - lo)), b = float(hi);
+    std::vector<float> out(v.voxels.size());
+    if (!(b > a)) {
+        std::copy(v.voxels.begin(), v.voxels.end(), out.begin());
+        return out;
+    }
+    for (size_t i = 0; i < out.size(); ++i) out[i] = std::clamp(v.voxels[i], a, b);
+    return out;
+}
+
 void check_volume(const Volume& v, const char* what) {
     if (v.geom.voxel_count() == 0 || v.voxels.size() != v.geom.voxel_count())
         throw InputError(what, "empty volume or voxel count does not match its grid");
@@ -134,6 +152,9 @@ void CoregParams::validate() const {
     if (!(relaxation > 0 && relaxation < 1)) bad("relaxation", "must be in (0, 1)");
     if (!(min_overlap >= 0 && min_overlap <= 1)) bad("min_overlap", "must be in [0, 1]");
     if (!(min_nmi >= 1 && min_nmi <= 2)) bad("min_nmi", "must be in [1, 2]");
+    if (!(probe_mm >= 0 && probe_mm <= 20)) bad("probe_mm", "must be in [0, 20]");
+    if (!(probe_deg >= 0 && probe_deg <= 20)) bad("probe_deg", "must be in [0, 20]");
+    if (!(max_probe_gain >= 0 && max_probe_gain <= 1)) bad("max_probe_gain", "must be in [0, 1]");
 }
 
 LabelVolume head_foreground(const Volume& v) {
@@ -223,8 +244,14 @@ CoregResult coregister(const Volume& fixed, const Volume& moving, const CoregPar
         return !(progress.cancel && progress.cancel->cancelled());
     };
     itkb::CoregOutput out;
-    itkb::coregister_rigid(grid_of(fixed.geom), fixed.voxels.data(), grid_of(moving.geom), moving.voxels.data(),
-                           p.fixed_foreground_mask ? ffg.voxels.data() : nullptr, cfg, step, out);
+    if (p.clip_intensities) {
+        const std::vector<float> fc = clipped_to_foreground_range(fixed, ffg), mc = clipped_to_foreground_range(moving, mfg);
+        itkb::coregister_rigid(grid_of(fixed.geom), fc.data(), grid_of(moving.geom), mc.data(),
+                               p.fixed_foreground_mask ? ffg.voxels.data() : nullptr, cfg, step, out);
+    } else {
+        itkb::coregister_rigid(grid_of(fixed.geom), fixed.voxels.data(), grid_of(moving.geom), moving.voxels.data(),
+                               p.fixed_foreground_mask ? ffg.voxels.data() : nullptr, cfg, step, out);
+    }
 
     CoregResult r;
     r.T_moving_from_fixed = to_matrix(out.matrix, out.offset);
@@ -235,6 +262,25 @@ CoregResult coregister(const Volume& fixed, const Volume& moving, const CoregPar
     for (const auto& l : out.levels) r.levels.push_back({l.iterations, l.metric, l.seconds, l.stop});
     r.overlap = overlap_fraction(ffg, r.T_moving_from_fixed, moving.geom);
     r.nmi = nmi_after_transform(fixed, moving, r.T_moving_from_fixed, &ffg, 64);
+    // Optimum probe: NMI with the result moved by +-probe_mm along each world axis and turned by
+    // +-probe_deg about each axis through the rotation centre (fixed side). At a true optimum every
+    // probe lowers the NMI; a result more than about half a probe off the NMI optimum has a
+    // probe that raises it.
+    if (p.probe_mm > 0) {
+        const Eigen::Vector3d c = r.center_world_mm;
+        for (int a = 0; a < 6; ++a)
+            for (double sgn : {-1.0, 1.0}) {
+                Eigen::Affine3d P = Eigen::Affine3d::Identity();
+                if (a < 3) {
+                    P.translation()[a] = sgn * p.probe_mm;
+                } else {
+                    P = Eigen::Translation3d(c) * Eigen::AngleAxisd(sgn * p.probe_deg * M_PI / 180.0, Eigen::Vector3d::Unit(a - 3)) *
+                        Eigen::Translation3d(-c);
+                }
+                const double n = nmi_after_transform(fixed, moving, r.T_moving_from_fixed * P.matrix(), &ffg, 64);
+                r.probe_gain = std::max(r.probe_gain, n - r.nmi);
+            }
+    }
     r.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
     progress("coregister", 1.0);
     if (r.overlap < p.min_overlap) {
@@ -249,6 +295,14 @@ CoregResult coregister(const Volume& fixed, const Volume& moving, const CoregPar
         s.precision(4);
         s << "no shared structure after registration (NMI " << r.nmi << " < " << p.min_nmi
           << "): another patient, an empty map, or a failed registration";
+        throw InputError("moving volume", s.str());
+    }
+    if (p.probe_mm > 0 && r.probe_gain > p.max_probe_gain) {
+        std::ostringstream s;
+        s.precision(3);
+        s << "the registration did not reach the NMI optimum (moving the result by " << p.probe_mm << " mm / "
+          << p.probe_deg << " deg raises the NMI by " << r.probe_gain << " > " << p.max_probe_gain
+          << "): not converged; try --metric mattes";
         throw InputError("moving volume", s.str());
     }
     return r;
@@ -344,11 +398,15 @@ TransformError transform_error(const Eigen::Matrix4d& A, const Eigen::Matrix4d& 
 
 namespace cf {
 
-SyntheticCoregCase make_synthetic_ct_case(const Volume& t1, uint64_t seed, double max_angle_deg, double max_shift_mm,
-                                          double inplane_mm, double slice_mm, double noise_hu) {
+namespace {
+
+/// A synthetic moving image: the T1 remapped through `lut` (normalised T1 level -> value,
+/// piecewise linear), optionally blurred on the T1's grid, moved by a random rigid transform
+/// and resampled onto an identity-direction grid of `spacing` covering the moved head, noise added.
+SyntheticCoregCase make_synthetic_case(const Volume& t1, uint64_t seed, double max_angle_deg, double max_shift_mm,
+                                       const Eigen::Vector3d& spacing, const std::vector<std::pair<double, double>>& lut,
+                                       double blur_fwhm_mm, double noise, float outside) {
     check_volume(t1, "T1 volume");
-    if (!(inplane_mm >= 0.2 && inplane_mm <= 5 && slice_mm >= 0.2 && slice_mm <= 10))
-        throw InputError("synthetic case", "voxel size out of [0.2, 5] mm in-plane / [0.2, 10] mm slices");
     std::mt19937_64 rng(seed);
     std::uniform_real_distribution<double> u(-1.0, 1.0);
     SyntheticCoregCase c;
@@ -357,7 +415,7 @@ SyntheticCoregCase make_synthetic_ct_case(const Volume& t1, uint64_t seed, doubl
     const Eigen::Vector3d center = t1.geom.center_world_mm();
     c.T_moving_from_fixed = euler_transform(c.angles_deg * M_PI / 180.0, c.translation_mm, center);
 
-    // CT-like grid: identity direction, covering the moved head's bounding box.
+    // Identity direction, covering the moved head's bounding box.
     const Eigen::Affine3d W = t1.geom.world_from_index();
     Eigen::Vector3d lo = Eigen::Vector3d::Constant(1e18), hi = -lo;
     const auto& d = t1.geom.dims;
@@ -367,17 +425,14 @@ SyntheticCoregCase make_synthetic_ct_case(const Volume& t1, uint64_t seed, doubl
         lo = lo.cwiseMin(q), hi = hi.cwiseMax(q);
     }
     VolumeGeometry g;
-    g.spacing_mm = Eigen::Vector3d(inplane_mm, inplane_mm, slice_mm);
+    g.spacing_mm = spacing;
     g.origin_mm = lo;
     for (int a = 0; a < 3; ++a) g.dims[size_t(a)] = int(std::ceil((hi[a] - lo[a]) / g.spacing_mm[a])) + 1;
-    if (g.voxel_count() > kMaxVoxels) throw InputError("synthetic case", "CT-like grid too large");
+    if (g.voxel_count() > kMaxVoxels) throw InputError("synthetic case", "moving grid too large");
 
-    // Remap intensities on the T1's own grid first (the remap is pointwise), then resample.
+    // Remap intensities on the T1's own grid first (the remap is pointwise), then blur, then resample.
     const auto [p02, p98] = robust_range(t1.voxels, 0.02, 0.98);
     const double span = std::max(1e-6, p98 - p02);
-    // Normalised T1 level -> CT-like value (piecewise linear, non-monotonic: white matter
-    // darker than grey, fat negative), so that the two images relate by MI only.
-    const std::array<std::pair<double, double>, 7> lut{{{0.0, -1000}, {0.08, -1000}, {0.2, 12}, {0.45, 42}, {0.7, 28}, {0.9, -60}, {1.3, -100}}};
     Volume remapped;
     remapped.geom = t1.geom;
     remapped.voxels.resize(t1.voxels.size());
@@ -393,11 +448,37 @@ SyntheticCoregCase make_synthetic_ct_case(const Volume& t1, uint64_t seed, doubl
             }
         remapped.voxels[i] = float(y);
     }
+    // FWHM = 2 sqrt(2 ln 2) sigma.
+    itkb::smooth_gaussian(grid_of(remapped.geom), remapped.voxels, blur_fwhm_mm / 2.354820045);
     // moving(q) = remapped(T^-1 q): resample through the fixed-from-moving transform.
-    c.moving = resample_rigid(remapped, c.T_moving_from_fixed.inverse(), g, false, -1000.f);
-    std::normal_distribution<double> n(0.0, noise_hu);
+    c.moving = resample_rigid(remapped, c.T_moving_from_fixed.inverse(), g, false, outside);
+    std::normal_distribution<double> n(0.0, noise);
     for (auto& v : c.moving.voxels) v = float(v + n(rng));
     return c;
+}
+
+}  // namespace
+
+SyntheticCoregCase make_synthetic_ct_case(const Volume& t1, uint64_t seed, double max_angle_deg, double max_shift_mm,
+                                          double inplane_mm, double slice_mm, double noise_hu) {
+    if (!(inplane_mm >= 0.2 && inplane_mm <= 5 && slice_mm >= 0.2 && slice_mm <= 10))
+        throw InputError("synthetic case", "voxel size out of [0.2, 5] mm in-plane / [0.2, 10] mm slices");
+    // Normalised T1 level -> CT-like value (piecewise linear, non-monotonic: white matter
+    // darker than grey, fat negative), so that the two images relate by MI only.
+    return make_synthetic_case(t1, seed, max_angle_deg, max_shift_mm, Eigen::Vector3d(inplane_mm, inplane_mm, slice_mm),
+                               {{0.0, -1000}, {0.08, -1000}, {0.2, 12}, {0.45, 42}, {0.7, 28}, {0.9, -60}, {1.3, -100}}, 0.0,
+                               noise_hu, -1000.f);
+}
+
+SyntheticCoregCase make_synthetic_epi_case(const Volume& t1, uint64_t seed, double max_angle_deg, double max_shift_mm,
+                                           double voxel_mm, double blur_fwhm_mm, double noise) {
+    if (!(voxel_mm >= 1 && voxel_mm <= 6)) throw InputError("synthetic case", "EPI voxel size out of [1, 6] mm");
+    if (!(blur_fwhm_mm >= 0 && blur_fwhm_mm <= 12)) throw InputError("synthetic case", "EPI blur out of [0, 12] mm FWHM");
+    // Normalised T1 level -> T2*-like mean EPI value: dark air, CSF brightest, grey above
+    // white (the T1's order reversed), fat suppressed: non-monotonic.
+    return make_synthetic_case(t1, seed, max_angle_deg, max_shift_mm, Eigen::Vector3d::Constant(voxel_mm),
+                               {{0.0, 0}, {0.08, 0}, {0.2, 1000}, {0.45, 620}, {0.7, 450}, {0.9, 120}, {1.3, 80}}, blur_fwhm_mm,
+                               noise, 0.f);
 }
 
 }  // namespace cf

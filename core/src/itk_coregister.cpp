@@ -19,6 +19,7 @@
 #include <itkRegistrationParameterScalesFromPhysicalShift.h>
 #include <itkGradientDescentOptimizerv4.h>
 #include <itkResampleImageFilter.h>
+#include <itkSmoothingRecursiveGaussianImageFilter.h>
 #include <itkTransformFileReader.h>
 #include <itkTransformFileWriter.h>
 #include <itkTxtTransformIOFactory.h>
@@ -367,6 +368,16 @@ int keep_clusters(const Grid& g, std::vector<uint8_t>& mask, int min_voxels) {
     const uint32_t* lab = rl->GetOutput()->GetBufferPointer();
     for (size_t i = 0; i < mask.size(); ++i) mask[i] = lab[i] ? 1 : 0;
     return int(rl->GetNumberOfObjects());
+}
+
+void smooth_gaussian(const Grid& g, std::vector<float>& voxels, double sigma_mm) {
+    if (!(sigma_mm > 0)) return;
+    auto img = image_from<FImage>(g, voxels.data());
+    auto f = itk::SmoothingRecursiveGaussianImageFilter<FImage, FImage>::New();
+    f->SetInput(img);
+    f->SetSigma(sigma_mm);
+    f->Update();
+    std::memcpy(voxels.data(), f->GetOutput()->GetBufferPointer(), voxels.size() * sizeof(float));
 }
 
 }  // namespace cf::itkb

@@ -78,4 +78,7 @@ namespace cf::itkb {
 /// `min_voxels` are removed (ITK ConnectedComponentImageFilter + RelabelComponentImageFilter).
 /// Returns the number of components kept.
 int keep_clusters(const Grid& g, std::vector<uint8_t>& mask, int min_voxels);
+/// Gaussian smoothing in place, sigma in mm along every axis (ITK's recursive Gaussian,
+/// SmoothingRecursiveGaussianImageFilter, spacing-aware). sigma_mm <= 0 leaves it as it is.
+void smooth_gaussian(const Grid& g, std::vector<float>& voxels, double sigma_mm);
 }  // namespace cf::itkb

@@ -3,6 +3,7 @@
 
 #include <chrono>
 #include <cmath>
+#include <cstdio>
 
 #include "cortexfuse/core/case.hpp"
 #include "cortexfuse/core/error.hpp"
@@ -51,6 +52,27 @@ Progress sub_progress(const Progress& p, double a, double b) {
 
 }  // namespace
 
+std::string volume_fingerprint(const Volume& v) {
+    uint64_t h = 1469598103934665603ull;
+    auto mix = [&h](const void* data, size_t n) {
+        const auto* b = static_cast<const unsigned char*>(data);
+        for (size_t i = 0; i < n; ++i) h = (h ^ b[i]) * 1099511628211ull;
+    };
+    mix(v.geom.dims.data(), sizeof(int) * 3);
+    for (int a = 0; a < 3; ++a) {
+        const double s = v.geom.spacing_mm[a], o = v.geom.origin_mm[a];
+        mix(&s, sizeof s), mix(&o, sizeof o);
+        for (int b = 0; b < 3; ++b) {
+            const double d = v.geom.direction(a, b);
+            mix(&d, sizeof d);
+        }
+    }
+    mix(v.voxels.data(), v.voxels.size() * sizeof(float));
+    char buf[17];
+    std::snprintf(buf, sizeof buf, "%016llx", static_cast<unsigned long long>(h));
+    return buf;
+}
+
 void FmriParams::validate() const {
     if (!(threshold > 0 && threshold <= 100)) throw InputError("fmri threshold", "must be in (0, 100]");
     if (min_cluster_voxels < 1 || min_cluster_voxels > 1000000) throw InputError("fmri min_cluster_voxels", "must be in [1, 1e6]");
@@ -92,6 +114,7 @@ nlohmann::json make_plan(const PlanInputs& in, const PlanParams& P, const fs::pa
     // Load everything first: a bad input fails before any long work.
     auto t = Clock::now();
     const Volume t1 = load_volume(in.t1);
+    plan["t1_fingerprint"] = volume_fingerprint(t1);
     std::optional<Volume> ct, fmri, fmri_ref;
     if (in.ct) ct = load_volume(*in.ct);
     if (in.fmri) fmri = load_volume(*in.fmri);

@@ -17,6 +17,7 @@
 #include "cortexfuse/core/case.hpp"
 #include "cortexfuse/core/overlay.hpp"
 #include "cortexfuse/core/phantom.hpp"
+#include "cortexfuse/core/plan.hpp"
 #include "cortexfuse/core/roi.hpp"
 #include "cortexfuse/core/surface.hpp"
 #include "cortexfuse/core/transfer_function.hpp"
@@ -30,11 +31,20 @@ namespace {
 
 struct Planned {
     fs::path dir, case_dir, result, plan, other_plan;
+    // Bad inputs: a plan of another patient's T1 on the same grid, a case whose brain mask is
+    // empty, a surface 300 mm away, a mesh with no triangles, a pose looking away from the
+    // brain, a plan whose fMRI map is empty.
+    fs::path other_patient_plan, empty_mask_case, far_mesh, no_triangles_mesh, away_result, empty_fmri_plan;
     Eigen::Vector2d fmri_px;  // where the fMRI blob is seen in the camera's fused picture
     double view_scale = 1.0;
 };
 
 void write_json(const fs::path& p, const nlohmann::json& j) { std::ofstream(p) << j.dump(1); }
+
+nlohmann::json read_json_file_here(const fs::path& p) {
+    std::ifstream in(p);
+    return nlohmann::json::parse(in);
+}
 
 const Planned& planned() {
     static const Planned w = [] {
@@ -96,6 +106,56 @@ const Planned& planned() {
                 }
         cf::save_volume(fmri, r.plan / "fmri_on_t1.nii.gz");
         write_json(r.plan / "fmri_transfer_function.json", cf::to_json(cf::preset_transfer_function("fmri_hot")));
+
+        // plan.json keeps the T1's fingerprint, as `cortexfuse plan` writes it.
+        write_json(r.plan / "plan.json", {{"format", "cortexfuse-plan/1"},
+                                          {"t1_fingerprint", cf::volume_fingerprint(cf::load_volume(r.dir / "t1.nii.gz"))}});
+
+        // Another patient's plan on an identical grid: same grid, other voxels.
+        r.other_patient_plan = r.dir / "other_patient_plan";
+        fs::create_directories(r.other_patient_plan);
+        cf::save_mask(mask, r.other_patient_plan / "brain_mask.nii.gz");
+        cf::Volume other_t1 = t1;
+        for (size_t i = 0; i < other_t1.voxels.size(); i += 7) other_t1.voxels[i] *= 0.9f;
+        write_json(r.other_patient_plan / "plan.json",
+                   {{"format", "cortexfuse-plan/1"}, {"t1_fingerprint", cf::volume_fingerprint(other_t1)}});
+        // A case whose brain mask is empty.
+        r.empty_mask_case = r.dir / "case_empty_mask";
+        fs::copy(r.case_dir, r.empty_mask_case, fs::copy_options::recursive);
+        cf::LabelVolume empty = mask;
+        std::fill(empty.voxels.begin(), empty.voxels.end(), uint8_t(0));
+        cf::save_mask(empty, r.dir / "empty_mask.nii.gz");
+        {
+            nlohmann::json cj = read_json_file_here(r.empty_mask_case / "case.json");
+            cj["brain_mask"] = "../empty_mask.nii.gz";
+            write_json(r.empty_mask_case / "case.json", cj);
+        }
+        // The plan's surface moved 300 mm: it lies on no brain of this case.
+        {
+            cf::SurfaceMesh far = mesh;
+            for (auto& v : far.vertices) v.x() += 300.f;
+            r.far_mesh = r.dir / "far_surface.ply";
+            cf::save_mesh(far, r.far_mesh);
+        }
+        // A mesh with vertices and no triangles (ASCII PLY).
+        r.no_triangles_mesh = r.dir / "no_triangles.ply";
+        std::ofstream(r.no_triangles_mesh) << "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\n"
+                                              "property float z\nelement face 0\nproperty list uchar int vertex_indices\n"
+                                              "end_header\n0 0 0\n1 0 0\n0 1 0\n";
+        // The camera turned 180 degrees about its vertical axis: it looks away from the brain.
+        {
+            cf::Pose away = cf::Pose::Identity();
+            away.topLeftCorner<3, 3>() = Eigen::AngleAxisd(M_PI, Eigen::Vector3d::UnitY()).toRotationMatrix();
+            r.away_result = r.dir / "result_away.json";
+            write_json(r.away_result, {{"T_camera_from_world", cf::pose_to_json(away * pc.T_camera_from_world)}});
+        }
+        // A plan whose fMRI map holds no active voxel.
+        r.empty_fmri_plan = r.dir / "empty_fmri_plan";
+        fs::create_directories(r.empty_fmri_plan);
+        cf::save_mask(mask, r.empty_fmri_plan / "brain_mask.nii.gz");
+        cf::Volume zero = t1;
+        std::fill(zero.voxels.begin(), zero.voxels.end(), 0.f);
+        cf::save_volume(zero, r.empty_fmri_plan / "fmri_on_t1.nii.gz");
 
         // A plan of another T1 (a 3 mm grid): must be refused.
         r.other_plan = r.dir / "other_plan";
@@ -249,4 +309,58 @@ TEST(OverlayPlanCli, PlanOfAnotherT1IsRefused) {
     const auto n = overlay({"--plan", (w.dir / "no_such_plan").string()}, w.dir / "none");
     EXPECT_NE(n.exit_code, 0);
     EXPECT_NE(n.err.find("not a folder"), std::string::npos) << n.err;
+}
+
+// Bad input: one line on stderr naming the input and the problem, a non-zero exit, and
+// nothing written (a new output folder is not even left behind; an existing one keeps only
+// what it held).
+TEST(OverlayPlanCli, BadInputsStopWithOneLineNamingTheInputAndWriteNothing) {
+    const auto& w = planned();
+    struct Bad {
+        std::string what;
+        std::vector<std::string> argv;  // full overlay argv after "overlay"
+        std::string input, problem;
+    };
+    const std::string cse = w.case_dir.string(), res = w.result.string();
+    const std::vector<Bad> bad{
+        {"another patient's plan", {cse, res, "--plan", w.other_patient_plan.string()}, w.other_patient_plan.string(),
+         "the plan was made from another T1 (its voxels differ"},
+        {"a plan of another grid", {cse, res, "--plan", w.other_plan.string()}, w.other_plan.string(), "another T1"},
+        {"absurd overlap", {cse, res, "--mesh", w.far_mesh.string()}, w.far_mesh.string(), "absurd overlap with the case's brain"},
+        {"empty brain mask", {w.empty_mask_case.string(), res}, (w.empty_mask_case / ".." / "empty_mask.nii.gz").string(),
+         "the brain mask is empty"},
+        {"no triangles", {cse, res, "--mesh", w.no_triangles_mesh.string()}, w.no_triangles_mesh.string(), "no triangles"},
+        {"pose away from the brain", {cse, w.away_result.string(), "--mesh", (w.plan / "brain_surface.ply").string()},
+         w.away_result.string(), "the camera points away from the brain"},
+        {"empty fMRI map", {cse, res, "--plan", w.empty_fmri_plan.string()}, (w.empty_fmri_plan / "fmri_on_t1.nii.gz").string(),
+         "empty: no active voxel"},
+    };
+    for (size_t i = 0; i < bad.size(); ++i) {
+        const auto& b = bad[i];
+        for (bool existing : {false, true}) {
+            const fs::path out = w.dir / ("bad_" + std::to_string(i) + (existing ? "_existing" : ""));
+            if (existing) {
+                fs::create_directories(out);
+                std::ofstream(out / "keep.txt") << "kept";
+            }
+            std::vector<std::string> a{CF_CORTEXFUSE_EXE, "overlay"};
+            a.insert(a.end(), b.argv.begin(), b.argv.end());
+            a.insert(a.end(), {"--out", out.string()});
+            const auto r = run_process(a, 120.0);
+            EXPECT_NE(r.exit_code, 0) << b.what;
+            EXPECT_EQ(std::count(r.err.begin(), r.err.end(), '\n'), 1) << b.what << ": " << r.err;
+            EXPECT_NE(r.err.find(b.input + ": "), std::string::npos) << b.what << ": " << r.err;
+            EXPECT_NE(r.err.find(b.problem), std::string::npos) << b.what << ": " << r.err;
+            if (existing) {
+                size_t n = 0;
+                for (const auto& e : fs::directory_iterator(out)) {
+                    ++n;
+                    EXPECT_EQ(e.path().filename(), "keep.txt") << b.what;
+                }
+                EXPECT_EQ(n, 1u) << b.what;
+            } else {
+                EXPECT_FALSE(fs::exists(out)) << b.what << ": the failed run left " << out;
+            }
+        }
+    }
 }

@@ -36,11 +36,22 @@ struct CoregParams {
     enum class Init { Centroids, Geometry, Identity } init = Init::Centroids;
     /// Sample the metric only on the fixed image's foreground (head, not air).
     bool fixed_foreground_mask = true;
+    /// Clip each image to its head foreground's robust range before registration (a copy; the
+    /// inputs are not changed): [p0.5 - 0.25 span, p99.5] of the foreground voxels, span =
+    /// p99.5 - p0.5. The histograms' bins then cover the tissue, not CT's -1000 HU air or a few
+    /// bright outliers (ANTs winsorises for the same reason). Mattes on bench CT case 0:
+    /// 0.158 -> 0.145 mm mean error over the brain; EPI-like cases unchanged (docs/planning.md).
+    bool clip_intensities = true;
     /// Quality gates (an error, not a silent bad result): at least this fraction of the
     /// fixed foreground must land inside the moving volume's field of view [0, 1], and the
     /// final NMI must exceed min_nmi (1 = independent images) [1, 2].
     double min_overlap = 0.5;
     double min_nmi = 1.02;
+    /// Optimum gate: the NMI is also measured with the result moved by +-probe_mm along each
+    /// axis and turned by +-probe_deg about each; when a probe raises it by more than
+    /// max_probe_gain the result is not at the NMI optimum (not converged) and is refused.
+    /// probe_mm 0 turns the gate off. [0, 20] mm, [0, 20] deg, [0, 1]
+    double probe_mm = 2.0, probe_deg = 2.0, max_probe_gain = 0.002;
 
     /// Throws InputError("coregister " + field, ...) when a value is out of range.
     void validate() const;
@@ -59,6 +70,7 @@ struct CoregResult {
     double metric = 0;       // ITK's final value (negative MI)
     double nmi = 0;          // (H(F)+H(M))/H(F,M) over the fixed foreground, after registration
     double overlap = 0;      // fraction of the fixed foreground inside the moving field of view
+    double probe_gain = 0;   // largest NMI rise of the optimum probes (CoregParams::probe_mm); <= 0 at an optimum
     double seconds = 0;
     std::vector<CoregLevelInfo> levels;
 };
@@ -123,5 +135,15 @@ struct SyntheticCoregCase {
 SyntheticCoregCase make_synthetic_ct_case(const Volume& t1, uint64_t seed, double max_angle_deg = 10,
                                           double max_shift_mm = 15, double inplane_mm = 0.9, double slice_mm = 2.0,
                                           double noise_hu = 5.0);
+
+/// The same for a mean-EPI-like moving image (the anatomy of an fMRI map's space): the moved
+/// head on a coarse isotropic grid (`voxel_mm`, 3 mm by default, covering the moved head),
+/// blurred before sampling (Gaussian, `blur_fwhm_mm`: the EPI's point spread and the
+/// downsampling; no geometric distortion), and a T2*-like contrast remapped non-monotonically
+/// from the T1's levels (air 0, CSF brightest 1000, grey 620 above white 450, fat suppressed
+/// 120), with noise (`noise` in those units). moving(T p) = blur(remap(fixed))(p).
+SyntheticCoregCase make_synthetic_epi_case(const Volume& t1, uint64_t seed, double max_angle_deg = 10,
+                                           double max_shift_mm = 15, double voxel_mm = 3.0, double blur_fwhm_mm = 4.0,
+                                           double noise = 20.0);
 
 }  // namespace cf

@@ -27,6 +27,12 @@ struct FmriParams {
 /// connected); everything else becomes 0. Returns the clusters kept through `clusters`.
 Volume threshold_activation(const Volume& stat, const FmriParams& p, int* clusters = nullptr);
 
+/// A fingerprint of a volume's grid and voxels (FNV-1a 64 over dims, spacing, origin,
+/// direction and the float voxels, as 16 hex digits). plan.json keeps the T1's as
+/// "t1_fingerprint"; `cortexfuse overlay --plan` refuses a plan whose T1 is not the case's
+/// (another patient's scan on an identical grid). Hand-written: 10 lines, no library needed.
+std::string volume_fingerprint(const Volume& v);
+
 struct PlanInputs {
     std::filesystem::path t1;
     std::optional<std::filesystem::path> brain_mask;      // use instead of skull stripping
