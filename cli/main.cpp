@@ -3,7 +3,11 @@
 #include <iostream>
 
 #include "commands.hpp"
+#include "cortexfuse/core/cpu_baseline.hpp"
 #include "cortexfuse/core/error.hpp"
+
+// A CPU without the build's -march features: one line and exit 69 before anything runs (docs/packaging.md).
+CF_CPU_BASELINE_CHECK("cortexfuse")
 
 int main(int argc, char** argv) {
     CLI::App app{"cortexfuse: photo-to-MRI fusion, batch tool"};

@@ -11,11 +11,15 @@
 #include <iostream>
 #include <thread>
 
+#include "cortexfuse/core/cpu_baseline.hpp"
 #include "cortexfuse/daemon/config.hpp"
 #include "cortexfuse/daemon/daemon.hpp"
 #include "cortexfuse/daemon/log.hpp"
 
 using namespace cf::daemon;
+
+// A CPU without the build's -march features: one line and exit 69 before anything runs (docs/packaging.md).
+CF_CPU_BASELINE_CHECK("cortexfused")
 
 int main(int argc, char** argv) {
     CLI::App app{"cortexfused: the CortexFuse daemon (HTTP API, push channel, tracker, renderer, jobs)"};

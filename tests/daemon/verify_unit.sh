@@ -13,7 +13,7 @@ out=$(systemd-analyze verify "$tmp/cortexfused.service" 2>&1) || { echo "$out"; 
 if echo "$out" | grep -q "cortexfused.service"; then echo "$out"; exit 1; fi
 # The tracker's priorities (docs/tracker.md): SCHED_FIFO allowed, the one capability granted.
 for key in Type=notify WatchdogSec= DynamicUser=yes ProtectSystem=strict StateDirectory= DevicePolicy=closed \
-           RestrictRealtime=no LimitRTPRIO= AmbientCapabilities=CAP_SYS_NICE; do
+           RestrictRealtime=no LimitRTPRIO= AmbientCapabilities=CAP_SYS_NICE "RestartPreventExitStatus=69 2"; do
   grep -q "^$key" "$unit" || { echo "$unit: $key missing"; exit 1; }
 done
 echo "ok"
