@@ -6,6 +6,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <random>
 #include <stdexcept>
 
 #include "cortexfuse/core/camera.hpp"
@@ -13,6 +14,7 @@
 #include "cortexfuse/core/renderer.hpp"
 #include "cortexfuse/core/transfer_function.hpp"
 #include "cortexfuse/core/volume.hpp"
+#include "../../core/src/trilinear.hpp"  // the ray caster's internal kernels
 
 using namespace cf;
 
@@ -527,4 +529,39 @@ TEST(CpuRenderer, RayStartMapDoesNotChangePixels) {
             EXPECT_LT(depth_diff, 1e-3f) << "view " << n << " surface_only " << surface_only;
             ++n;
         }
+}
+
+// The ray caster's sample and gradient kernels (SIMD where built with SSE4.1) against the plain
+// trilinear formula in double, on random voxels of a grid with three different strides.
+TEST(TrilinearKernels, MatchThePlainFormulas) {
+    const std::array<int, 3> d{13, 11, 9};
+    std::vector<uint16_t> q(static_cast<size_t>(d[0]) * d[1] * d[2]);
+    std::mt19937 rng(7);
+    std::uniform_int_distribution<int> value(0, 4095);
+    for (auto& v : q) v = uint16_t(value(rng));
+    auto at = [&](int i, int j, int k) { return double(q[(size_t(k) * d[1] + size_t(j)) * d[0] + size_t(i)]); };
+    auto plain = [&](double x, double y, double z) {
+        const int i = int(x), j = int(y), k = int(z);
+        const double fx = x - i, fy = y - j, fz = z - k;
+        double s = 0;
+        for (int c = 0; c < 2; ++c)
+            for (int b = 0; b < 2; ++b)
+                for (int a = 0; a < 2; ++a) s += (a ? fx : 1 - fx) * (b ? fy : 1 - fy) * (c ? fz : 1 - fz) * at(i + a, j + b, k + c);
+        return s;
+    };
+    std::uniform_real_distribution<float> u(0.f, 1.f);
+    double worst_sample = 0, worst_gradient = 0;
+    for (int n = 0; n < 5000; ++n) {
+        // Inside [1, d - 2 - 1e-3]: where the gradient kernel applies (and the sample's too).
+        const float x = 1.f + u(rng) * (float(d[0] - 3) - 1e-3f), y = 1.f + u(rng) * (float(d[1] - 3) - 1e-3f),
+                    z = 1.f + u(rng) * (float(d[2] - 3) - 1e-3f);
+        worst_sample = std::max(worst_sample, std::abs(double(trilinear_u16(q.data(), d, x, y, z)) - plain(x, y, z)));
+        const Eigen::Vector3f g = central_difference_u16(q.data(), d, x, y, z);
+        const double gx = plain(x + 1.0, y, z) - plain(x - 1.0, y, z), gy = plain(x, y + 1.0, z) - plain(x, y - 1.0, z),
+                     gz = plain(x, y, z + 1.0) - plain(x, y, z - 1.0);
+        worst_gradient = std::max({worst_gradient, std::abs(g.x() - gx), std::abs(g.y() - gy), std::abs(g.z() - gz)});
+    }
+    // Float rounding on values up to 4095: a few thousandths.
+    EXPECT_LT(worst_sample, 0.01);
+    EXPECT_LT(worst_gradient, 0.02);
 }
