@@ -37,6 +37,9 @@ void add_coreg_options(CLI::App* cmd, CoregParams& p, std::string& metric) {
     cmd->add_option("--seed", p.seed, "sampling seed")->capture_default_str();
     cmd->add_option("--min-overlap", p.min_overlap, "quality gate: fixed head inside moving FOV")->capture_default_str();
     cmd->add_option("--min-nmi", p.min_nmi, "quality gate: NMI after registration")->capture_default_str();
+    cmd->add_option("--fixed-mask", p.fixed_foreground_mask,
+                    "sample the metric only on the fixed image's head foreground (true/false)")
+        ->capture_default_str();
     cmd->add_option("--clip-intensities", p.clip_intensities,
                     "clip each image to its head's robust intensity range before registration (true/false)")
         ->capture_default_str();

@@ -10,6 +10,8 @@
 #  4. `cortexfuse plan --t1 T1 --ct CT --fmri MAP` (co-registers the CT, thresholds the map);
 #  5. `cortexfuse overlay` with the registered pose at 50 % photo opacity: once without the
 #     plan's modalities (T1 only, CPU ray caster), once with --plan (GL fusion scene).
+# docs/gallery/ then holds exactly what this makes (everything else there is removed, README.md
+# kept): the pictures as JPEG (quality 88, Debian's python3-pil) to keep the repository small.
 set -euo pipefail
 root=$(cd "$(dirname "$0")/.." && pwd)
 build=${1:-$root/build}
@@ -75,11 +77,12 @@ PY
   --view-width "$width" --yaw -35 --yaw 35 --pitch 30
 
 photo=$(ls "$case"/photo.* | head -n1)
-rm -f "$out"/fused_*.png "$out"/photo.* "$out"/overlay*.json
-cp "$photo" "$out/photo.${photo##*.}"
-cp "$work/ov_t1/fused_camera.png" "$out/fused_camera_t1.png"
+find "$out" -mindepth 1 -maxdepth 1 ! -name README.md -exec rm -rf {} +
+jpeg() { "$py" -c "import sys; from PIL import Image; Image.open(sys.argv[1]).convert('RGB').save(sys.argv[2], quality=88, optimize=True)" "$1" "$2"; }
+jpeg "$photo" "$out/photo.jpg"
+jpeg "$work/ov_t1/fused_camera.png" "$out/fused_camera_t1.jpg"
 for f in fused_camera fused_yaw-35 fused_yaw35 fused_pitch30; do
-  cp "$work/ov_mm/$f.png" "$out/${f}_multimodal.png"
+  jpeg "$work/ov_mm/$f.png" "$out/${f}_multimodal.jpg"
 done
 cp "$work/ov_mm/overlay.json" "$out/overlay_multimodal.json"
 python3 -c "import json,sys; p=json.load(open(sys.argv[1])); print(json.dumps({s['step']: {k: v for k, v in s.items() if k in ('seconds','nmi','nmi_after','overlap','clusters','voxels_kept','transform')} for s in p.get('steps', []) if 'step' in s}, indent=1))" "$work/plan/plan.json" > "$out/plan_summary.json" || true

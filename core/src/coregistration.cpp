@@ -224,7 +224,12 @@ CoregResult coregister(const Volume& fixed, const Volume& moving, const CoregPar
     cfg.shrink = p.shrink;
     cfg.smooth_mm = p.smooth_mm;
     cfg.iterations = p.iterations;
-    cfg.sampling = p.sampling;
+    // The sample count is `sampling` x the fixed head's voxels either way; without the head
+    // mask the samples spread over the whole fixed grid (air and the dark skull of a T1 too).
+    // The joint-histogram metric (Nmi) always samples the head only: without the mask it did not
+    // converge on the EPI-like cases either.
+    const bool head_mask = p.fixed_foreground_mask || p.metric == CoregParams::Metric::Nmi;
+    cfg.sampling = head_mask ? p.sampling : std::min(1.0, p.sampling * double(nf) / double(fixed.geom.voxel_count()));
     cfg.max_step = p.max_step;
     cfg.min_step = p.min_step;
     cfg.relaxation = p.relaxation;
@@ -247,10 +252,10 @@ CoregResult coregister(const Volume& fixed, const Volume& moving, const CoregPar
     if (p.clip_intensities) {
         const std::vector<float> fc = clipped_to_foreground_range(fixed, ffg), mc = clipped_to_foreground_range(moving, mfg);
         itkb::coregister_rigid(grid_of(fixed.geom), fc.data(), grid_of(moving.geom), mc.data(),
-                               p.fixed_foreground_mask ? ffg.voxels.data() : nullptr, cfg, step, out);
+                               head_mask ? ffg.voxels.data() : nullptr, cfg, step, out);
     } else {
         itkb::coregister_rigid(grid_of(fixed.geom), fixed.voxels.data(), grid_of(moving.geom), moving.voxels.data(),
-                               p.fixed_foreground_mask ? ffg.voxels.data() : nullptr, cfg, step, out);
+                               head_mask ? ffg.voxels.data() : nullptr, cfg, step, out);
     }
 
     CoregResult r;

@@ -2,6 +2,7 @@
 // fast), transform files, quality gates, fMRI thresholding.
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
@@ -96,6 +97,55 @@ TEST(Coregister, RecoversSyntheticEpiLikeMisalignmentWithBothMetrics) {
             std::printf("epi seed %d metric %d: error %.3f mm, nmi %.4f, probe gain %.5f\n", int(seed), int(metric), e.mean_mm, r.nmi,
                         r.probe_gain);
         }
+    }
+}
+
+// A CT with bone (the skull, +1200 HU, where the T1 is dark just outside the brain; soft
+// tissue 40 HU; air -1000 HU), moved by 8 deg / 11 mm. The T1's skull is as dark as air, so a
+// metric sampled on the T1's head foreground never saw the bone: the gallery's CT ended 8.5 mm
+// off that way. Sampled over the whole grid (the default) it is found.
+TEST(Coregister, RecoversACtWithBone) {
+    const Head& h = head3mm();
+    const auto& g = h.t1.geom;
+    std::vector<float> sorted(h.t1.voxels);
+    std::nth_element(sorted.begin(), sorted.begin() + long(sorted.size() * 99 / 100), sorted.end());
+    const float hi = sorted[sorted.size() * 99 / 100];
+    // The brain dilated by 3 voxels (9 mm): skull and scalp lie in that shell.
+    LabelVolume near = h.brain;
+    for (int it = 0; it < 3; ++it) {
+        LabelVolume grown = near;
+        for (int k = 1; k + 1 < g.dims[2]; ++k)
+            for (int j = 1; j + 1 < g.dims[1]; ++j)
+                for (int i = 1; i + 1 < g.dims[0]; ++i)
+                    if (!near.at(i, j, k) && (near.at(i - 1, j, k) || near.at(i + 1, j, k) || near.at(i, j - 1, k) ||
+                                              near.at(i, j + 1, k) || near.at(i, j, k - 1) || near.at(i, j, k + 1)))
+                        grown.voxels[g.linear(i, j, k)] = 1;
+        near = std::move(grown);
+    }
+    Volume ct = h.t1;
+    std::mt19937 rng(9);
+    std::normal_distribution<float> noise(0.f, 10.f);
+    for (size_t i = 0; i < ct.voxels.size(); ++i) {
+        const bool bone = near.voxels[i] && !h.brain.voxels[i] && h.t1.voxels[i] < 0.25f * hi;
+        const bool tissue = h.t1.voxels[i] > 0.12f * hi || h.brain.voxels[i];
+        ct.voxels[i] = bone ? 1200.f + noise(rng) : tissue ? 40.f + noise(rng) : -1000.f;
+    }
+    const Eigen::Matrix4d T = euler_transform(Eigen::Vector3d(0.087, 0.0, 0.14), Eigen::Vector3d(6, -8, 5), g.center_world_mm());
+    const Volume moving = resample_rigid(ct, T.inverse(), g, false, -1000.f);
+    const CoregResult r = coregister(h.t1, moving, fast_params());
+    const TransformError e = transform_error(T, r.T_moving_from_fixed, h.brain);
+    EXPECT_LT(e.mean_mm, 1.0) << "max " << e.max_mm;
+    EXPECT_GT(transform_error(T, r.T_initial, h.brain).mean_mm, 3.0);
+    CoregParams masked = fast_params();
+    masked.fixed_foreground_mask = true;
+    masked.min_nmi = 1.0;
+    masked.probe_mm = 0;
+    try {
+        const CoregResult m = coregister(h.t1, moving, masked);
+        std::printf("ct with bone: %.3f mm sampled everywhere, %.3f mm on the T1's head mask\n", e.mean_mm,
+                    transform_error(T, m.T_moving_from_fixed, h.brain).mean_mm);
+    } catch (const std::exception& x) {
+        std::printf("ct with bone: %.3f mm sampled everywhere; on the T1's head mask: %s\n", e.mean_mm, x.what());
     }
 }
 

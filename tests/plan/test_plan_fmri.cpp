@@ -5,6 +5,7 @@
 // the map's own transfer function (threshold -> peak, hot colours, transparent below).
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <filesystem>
 #include <random>
 
@@ -12,6 +13,7 @@
 #include "cortexfuse/core/coregistration.hpp"
 #include "cortexfuse/core/error.hpp"
 #include "cortexfuse/core/plan.hpp"
+#include "cortexfuse/core/surface.hpp"
 #include "cortexfuse/core/transfer_function.hpp"
 #include "cortexfuse/core/volume.hpp"
 
@@ -75,9 +77,25 @@ TEST(PlanFmri, EpiSpaceMapIsThresholdedRegisteredAndResampledOntoTheT1) {
             }
     save_volume(tmap, dir / "tmap.nii.gz");
 
+    // A reference mask that differs from the brain mask (its upper third cut off): the plan
+    // reports their Dice.
+    LabelVolume ref = brain;
+    for (int k = 2 * ref.geom.dims[2] / 3; k < ref.geom.dims[2]; ++k)
+        for (int j = 0; j < ref.geom.dims[1]; ++j)
+            for (int i = 0; i < ref.geom.dims[0]; ++i) ref.voxels[ref.geom.linear(i, j, k)] = 0;
+    save_mask(ref, dir / "reference_mask.nii.gz");
+    size_t both = 0, na = 0, nb = 0;
+    for (size_t i = 0; i < brain.voxels.size(); ++i) {
+        na += brain.voxels[i] != 0, nb += ref.voxels[i] != 0;
+        both += brain.voxels[i] != 0 && ref.voxels[i] != 0;
+    }
+    const double expected_dice = 2.0 * double(both) / double(na + nb);
+    ASSERT_LT(expected_dice, 0.99);
+
     PlanInputs in;
     in.t1 = dir / "t1.nii.gz";
     in.brain_mask = dir / "brain_mask.nii.gz";
+    in.reference_mask = dir / "reference_mask.nii.gz";
     in.fmri = dir / "tmap.nii.gz";
     in.fmri_reference = dir / "mean_epi.nii.gz";
     PlanParams P;
@@ -91,6 +109,25 @@ TEST(PlanFmri, EpiSpaceMapIsThresholdedRegisteredAndResampledOntoTheT1) {
     const nlohmann::json plan = make_plan(in, P, dir / "plan");
 
     EXPECT_EQ(plan["t1_fingerprint"], volume_fingerprint(t1));
+    // Every step with its seconds; the mask step with the Dice against the reference.
+    for (const auto& st : plan["steps"]) EXPECT_TRUE(st.contains("seconds")) << st.dump();
+    EXPECT_NEAR(plan["steps"][1]["dice"].get<double>(), expected_dice, 1e-9) << plan["steps"][1].dump();
+    EXPECT_TRUE(load_mask(dir / "plan" / "brain_mask.nii.gz").geom.same_grid(t1.geom));
+    // The surface in world LPS mm: on the brain (inside the mask's world box, 6 mm slack).
+    {
+        const SurfaceMesh mesh = load_mesh(dir / "plan" / "brain_surface.ply");
+        ASSERT_FALSE(mesh.triangles.empty());
+        const Eigen::Affine3d I = brain.geom.index_from_world();
+        size_t inside = 0;
+        for (const auto& v : mesh.vertices) {
+            const Eigen::Vector3d q = I * v.cast<double>();
+            inside += q.x() > -2 && q.y() > -2 && q.z() > -2 && q.x() < brain.geom.dims[0] + 1 && q.y() < brain.geom.dims[1] + 1 &&
+                      q.z() < brain.geom.dims[2] + 1 && brain.at(std::clamp(int(std::lround(q.x())), 0, brain.geom.dims[0] - 1),
+                                                                 std::clamp(int(std::lround(q.y())), 0, brain.geom.dims[1] - 1),
+                                                                 std::clamp(int(std::lround(q.z())), 0, brain.geom.dims[2] - 1));
+        }
+        EXPECT_GT(double(inside) / double(mesh.vertices.size()), 0.5) << "surface vertices on the brain mask";
+    }
     const nlohmann::json* step = nullptr;
     for (const auto& s : plan["steps"])
         if (s["step"] == "fmri") step = &s;
