@@ -186,12 +186,13 @@ void main() {
                     t_exit = min(t_exit, lt1[l]);
                 }
                 if (!visible) {
-                    // Jump to where the ray leaves the invisible brick(s), on the lattice.
+                    // Jump to where the ray leaves the invisible cell(s), on the lattice, and
+                    // sample there in this same iteration (a point in an empty cell finds
+                    // nothing): a jump and the sample after it cost one loop step, not two.
                     t = max(ceil(t_exit / step + 1e-4) * step, t + step);
-                    continue;
                 }
                 for (int l = 0; l < NLAYERS; ++l) {
-                    if (lt1[l] <= lt0[l] || t < lt0[l] || t > lt1[l]) continue;
+                    if (lt1[l] <= lt0[l] || t < lt0[l] || t > lt1[l] || t >= t_mesh) continue;
                     const float s = volt(l, oq[l] + t * dq[l]);
                     if (l == 0 && u_surface_only && !(s >= u_iso)) continue;
                     if (texelFetch(u_lut, ivec2(int(s + 0.5), l), 0).a * u_weight[l] > 0.0) found = true;
