@@ -9,7 +9,7 @@ PACKAGES=(
   nlohmann-json3-dev libcli11-dev libspdlog-dev
   libgtest-dev libgmock-dev libbenchmark-dev
   elastix time
-  python3-nibabel python3-scipy
+  python3-nibabel python3-scipy python3-pil
   clang
   libgphoto2-dev libraw-dev libv4l-dev libudev-dev
   libegl-dev libepoxy-dev libegl-mesa0 libgl1-mesa-dri
