@@ -59,6 +59,11 @@ def rot(axis, deg):
     r = np.eye(4); r[i, i] = c; r[i, j] = -s; r[j, i] = s; r[j, j] = c; return r
 move = rot(2, 8) @ rot(0, 5); move[:3, 3] = [-6.0, 8.0, 5.0]   # RAS: (6, -8, 5) mm in LPS
 nib.save(nib.Nifti1Image(ct.astype(np.int16), move @ t1.affine), sys.argv[4])
+# The truth as an ITK transform (T1 world -> CT world, LPS): F move F with F = diag(-1, -1, 1).
+F = np.diag([-1.0, -1.0, 1.0, 1.0]); M = F @ move @ F
+open(sys.argv[4].replace(".nii.gz", "_truth.tfm"), "w").write(
+    "#Insight Transform File V1.0\n#Transform 0\nTransform: AffineTransform_double_3_3\nParameters: %s\nFixedParameters: 0 0 0\n"
+    % " ".join("%.12g" % v for v in list(M[:3, :3].ravel()) + list(M[:3, 3])))
 ov = json.load(open(sys.argv[3]))
 p = np.array(ov["cast_back"][0]["p_world_mm"])
 T = np.array(ov["views"][0]["T_camera_from_world"], float).reshape(4, 4)
@@ -86,4 +91,6 @@ for f in fused_camera fused_yaw-35 fused_yaw35 fused_pitch30; do
 done
 cp "$work/ov_mm/overlay.json" "$out/overlay_multimodal.json"
 python3 -c "import json,sys; p=json.load(open(sys.argv[1])); print(json.dumps({s['step']: {k: v for k, v in s.items() if k in ('seconds','nmi','nmi_after','overlap','clusters','voxels_kept','transform')} for s in p.get('steps', []) if 'step' in s}, indent=1))" "$work/plan/plan.json" > "$out/plan_summary.json" || true
+# The plan's CT co-registration against the known misalignment, over the brain.
+"$cf" coregister-error "$work/ct_truth.tfm" "$work/plan/ct_to_t1.tfm" --mask "$mask" > "$out/ct_coregistration_error.json"
 echo "make-gallery: wrote $(ls "$out" | wc -l) entries to $out"
