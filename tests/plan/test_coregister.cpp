@@ -102,7 +102,7 @@ TEST(Coregister, RecoversSyntheticEpiLikeMisalignmentWithBothMetrics) {
 
 // A CT with bone (the skull, +1200 HU, where the T1 is dark just outside the brain; soft
 // tissue 40 HU; air -1000 HU), moved by 8 deg / 11 mm. The T1's skull is as dark as air, so a
-// metric sampled on the T1's head foreground never saw the bone: the gallery's CT ended 8.5 mm
+// metric sampled on the T1's head foreground never saw the bone: the gallery's CT ended 8.1 mm
 // off that way. Sampled over the whole grid (the default) it is found.
 TEST(Coregister, RecoversACtWithBone) {
     const Head& h = head3mm();

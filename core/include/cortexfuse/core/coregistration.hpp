@@ -36,7 +36,7 @@ struct CoregParams {
     enum class Init { Centroids, Geometry, Identity } init = Init::Centroids;
     /// Sample the metric only on the fixed image's foreground (head, not air). Off by default:
     /// a T1's skull is as dark as air, so the head mask leaves out the bone, a CT's strongest
-    /// structure (a CT with bone, 8 deg / 11 mm misaligned: 8.5 mm mean error over the brain
+    /// structure (a CT with bone, 8 deg / 11 mm misaligned: 8.1 mm mean error over the brain
     /// with the mask, 0.25 mm without; synthetic CT-like cases 0.145 -> 0.139 mm, EPI-like
     /// 0.24 -> 0.07 mm; docs/planning.md). The sample count stays `sampling` x head voxels.
     /// Metric::Nmi always uses the mask (without it that metric did not converge on EPI-like cases).
