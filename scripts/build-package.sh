@@ -25,7 +25,8 @@ cmake -S . -B "$build" -G Ninja -DCMAKE_BUILD_TYPE=RelWithDebInfo -DCF_NATIVE=OF
 ninja -C "$build" -j"$jobs" cortexfused cortexfuse cf_package_config
 [ -f ui/dist/index.html ] || echo "build-package: ui/dist not built (scripts/build.sh builds it): the package has no UI" >&2
 mkdir -p "$out"
-(cd "$build" && cpack -G DEB -B "$(realpath "$out")" >/dev/null)
+out=$(realpath "$out")
+(cd "$build" && cpack -G DEB -B "$out" >/dev/null)
 deb=$(ls -t "$out"/cortexfuse_*.deb | head -1)
 echo "build-package: $deb (CPU baseline $march)"
 echo "$deb"

@@ -46,6 +46,32 @@ for s in postinst prerm postrm; do
     sh -n "$tmp/control/$s" || fail "maintainer script $s: syntax error"
 done
 
+# The CPU baseline (docs/packaging.md): named in the description; a portable build (CF_NATIVE=OFF,
+# scripts/build-package.sh) must hold no instruction beyond it in its binaries: no EVEX (AVX-512)
+# for x86-64-v3, no VEX (AVX) either for x86-64-v2 and plain x86-64. In 64-bit code an instruction
+# whose first byte (after an optional 67 prefix) is 62 is EVEX, c4/c5 VEX.
+dpkg-deb -f "$deb" Description | grep -q "CPU baseline: " || fail "the description does not name the CPU baseline: $(dpkg-deb -f "$deb" Description)"
+native=$(sed -n 's/^CF_NATIVE:BOOL=//p' "$build/CMakeCache.txt")
+march=$(sed -n 's/^CF_MARCH:STRING=//p' "$build/CMakeCache.txt")
+isa_check=
+case "$native:$march" in
+    ON:*|TRUE:*|1:*) echo "CPU baseline: native (this machine's CPU only; scripts/build-package.sh makes the portable package)" ;;
+    *:x86-64-v3) isa_check='^62$' ;;
+    *:x86-64-v2|*:x86-64|*:) isa_check='^(62|c4|c5)$' ;;
+    *) echo "CPU baseline: $march (no instruction scan for it)" ;;
+esac
+if [ -n "$isa_check" ] && command -v objdump >/dev/null; then
+    for f in cortexfused cortexfuse; do
+        mkdir -p "$tmp/isa"
+        dpkg-deb --fsys-tarfile "$deb" | tar -x -C "$tmp/isa" "./usr/bin/$f"
+        bad=$(objdump -d --no-addresses "$tmp/isa/usr/bin/$f" | awk -F'\t' -v re="$isa_check" '
+            NF >= 3 { split($2, b, " "); first = (b[1] == "67") ? b[2] : b[1]; if (first ~ re) { n++; if (n <= 3) ex = ex " | " $3 } }
+            END { if (n) print n " instructions beyond the baseline, e.g." ex }')
+        [ -z "$bad" ] || fail "usr/bin/$f is built for CPU baseline ${march:-x86-64} but holds $bad"
+    done
+    echo "CPU baseline: ${march:-x86-64}, no instruction beyond it in cortexfused and cortexfuse (objdump)"
+fi
+
 # 3. Files.
 root=$tmp/root
 dpkg-deb -x "$deb" "$root"
