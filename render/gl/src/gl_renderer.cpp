@@ -110,7 +110,7 @@ struct Layer {
     float grad_scale = 1.f;
     std::array<float, 3> box_lo{}, box_hi{};
     std::vector<uint8_t> brick_visible;
-    std::vector<std::array<int, 3>> frontier;  // frontier_bricks(brick_visible): where rays enter it
+    std::vector<std::array<int, 3>> frontier;  // the frontier of the visible kCell^3 cells: where rays enter them
 };
 
 struct RaycastProgram {
@@ -389,7 +389,7 @@ public:
             }
             glUniform1i(P.has_mesh, mesh_triangles_ > 0 ? 1 : 0);
             // Where rays may start (core's RayStartMap, as the CPU ray caster): the drawn layers'
-            // frontier bricks projected on the CPU, a few thousand cells in a storage buffer.
+            // frontier cells projected on the CPU, a few thousand grid cells in a storage buffer.
             const bool start_on = opt.ray_start_map && n_drawn > 0 && start_map_for(T, drawn, n_drawn);
             glUniform1i(P.start_on, start_on ? 1 : 0);
             if (start_on) {
@@ -444,7 +444,7 @@ private:
             for (int a = 0; a < 3; ++a) inside = inside && o[a] >= L.box_lo[a] - 1.0 && o[a] <= L.box_hi[a] + 1.0;
             if (inside) return false;
             if (L.frontier.empty()) continue;
-            if (!start_map_.add(T * index_from_scene.inverse(), L.frontier, kBrick)) return false;
+            if (!start_map_.add(T * index_from_scene.inverse(), L.frontier, kCell)) return false;
         }
         return true;
     }
@@ -534,7 +534,9 @@ private:
             cell_visible[b] = a <= c && count[size_t(c + 1)] - count[size_t(a)] > 0 ? 1 : 0;
         }
         const std::vector<uint8_t> distance = brick_chebyshev_distance(cell_visible, L.nc, kMaxBrickDistance);
-        L.frontier = frontier_bricks(L.brick_visible, L.nb);
+        // Rays start at the nearest frontier cell, not brick: within half a brick of the content
+        // (the CPU ray caster's 4^3 blocks alike).
+        L.frontier = frontier_bricks(cell_visible, L.nc);
         glBindTexture(GL_TEXTURE_3D, L.bricks.get());
         glPixelStorei(GL_UNPACK_ALIGNMENT, 1);
         glTexSubImage3D(GL_TEXTURE_3D, 0, 0, 0, 0, L.nc[0], L.nc[1], L.nc[2], GL_RED_INTEGER, GL_UNSIGNED_BYTE,
