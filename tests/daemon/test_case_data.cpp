@@ -572,7 +572,10 @@ TEST(CaseData, EndToEndPhantomCaseThroughTheApi) {
     const double total_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
     std::printf("e2e: MRE %.2f mm (initial %.2f mm), TRE %.2f mm, registration %.1f s, %d evaluations, whole test %.1f s\n", e.mre_mm,
                 e_init.mre_mm, e.tre_mm, secs, job["result"]["evaluations"].get<int>(), total_s);
-    EXPECT_LT(e.mre_mm, 3.0);
+    // Within the engine's figure (seed protocol: MRE <= 1.0 mm mean; this case 0.36 mm in release,
+    // 0.86 mm under ASan), and better than the landmark start.
+    EXPECT_LE(e.mre_mm, 1.0);
+    EXPECT_LT(e.mre_mm, e_init.mre_mm);
     EXPECT_GT(e.targets, 0);
     // The case ends registered.
     EXPECT_EQ(post_json("/api/cases/" + sid + "/state", {{"state", "registered"}}).status, 200);
