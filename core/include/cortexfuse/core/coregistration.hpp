@@ -55,6 +55,7 @@ struct CoregParams {
     /// Optimum gate: the NMI is also measured with the result moved by +-probe_mm along each
     /// axis and turned by +-probe_deg about each; when a probe raises it by more than
     /// max_probe_gain the result is not at the NMI optimum (not converged) and is refused.
+    /// Applies to Metric::Nmi only (a Mattes optimum need not be an NMI optimum).
     /// probe_mm 0 turns the gate off. [0, 20] mm, [0, 20] deg, [0, 1]
     double probe_mm = 2.0, probe_deg = 2.0, max_probe_gain = 0.002;
 
@@ -75,7 +76,7 @@ struct CoregResult {
     double metric = 0;       // ITK's final value (negative MI)
     double nmi = 0;          // (H(F)+H(M))/H(F,M) over the fixed foreground, after registration
     double overlap = 0;      // fraction of the fixed foreground inside the moving field of view
-    double probe_gain = 0;   // largest NMI rise of the optimum probes (CoregParams::probe_mm); <= 0 at an optimum
+    double probe_gain = 0;   // largest NMI rise of the optimum probes (CoregParams::probe_mm; NMI metric only); <= 0 at an optimum
     double seconds = 0;
     std::vector<CoregLevelInfo> levels;
 };
