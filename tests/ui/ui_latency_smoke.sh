@@ -3,7 +3,7 @@
 # kind at 1280x800; the JSON must parse and hold, for every kind, a first and a refined picture
 # (the refined one full size, not before the first), no failed touch, the renderer, the daemon's
 # peak RSS and its clean exit. No timing threshold (the figures depend on the machine's load:
-# docs/performance.md). Exit 77 (skipped) as the benchmark: without node >= 20, chromium or
+# docs/performance.md). Exit 77 (skipped) as the benchmark: without node >= 18, chromium or
 # ui/node_modules.
 # Usage: ui_latency_smoke.sh BUILD_DIR
 set -u
