@@ -46,6 +46,21 @@ CoregParams fast_params() {
     return p;
 }
 
+/// A synthetic case registered with `metric`: the result and its error over the brain before
+/// (the initial alignment) and after.
+struct Recovery {
+    CoregResult r;
+    TransformError before, after;
+};
+Recovery recover(const Head& h, const SyntheticCoregCase& c, CoregParams::Metric metric) {
+    CoregParams p = fast_params();
+    p.metric = metric;
+    Recovery out{coregister(h.t1, c.moving, p), {}, {}};
+    out.before = transform_error(c.T_moving_from_fixed, out.r.T_initial, h.brain);
+    out.after = transform_error(c.T_moving_from_fixed, out.r.T_moving_from_fixed, h.brain);
+    return out;
+}
+
 fs::path temp_dir(const char* name) {
     const fs::path d = fs::temp_directory_path() / (std::string(name) + "_" + std::to_string(::getpid()));
     fs::create_directories(d);
@@ -61,11 +76,7 @@ TEST(Coregister, RecoversSyntheticCtLikeMisalignment) {
         // Mattes MI; ITK's joint-histogram MI (--metric nmi) is not robust on this CT-like
         // remap (docs/planning.md), so it is not held to this figure.
         for (auto metric : {CoregParams::Metric::Mattes}) {
-            CoregParams p = fast_params();
-            p.metric = metric;
-            const CoregResult r = coregister(h.t1, c.moving, p);
-            const TransformError before = transform_error(c.T_moving_from_fixed, r.T_initial, h.brain);
-            const TransformError e = transform_error(c.T_moving_from_fixed, r.T_moving_from_fixed, h.brain);
+            const auto [r, before, e] = recover(h, c, metric);
             // 3 mm voxels here; the 1 mm figure (<= 0.5 mm) comes from bench/coregister_vs_elastix.sh.
             EXPECT_LT(e.mean_mm, 1.0) << "seed " << seed << " metric " << int(metric) << " initial " << before.mean_mm;
             EXPECT_GT(before.mean_mm, 3.0);
@@ -86,11 +97,7 @@ TEST(Coregister, RecoversSyntheticEpiLikeMisalignmentWithBothMetrics) {
         const SyntheticCoregCase c = make_synthetic_epi_case(h.t1, seed, 10, 15, 3.0, 4.0, 20.0);
         EXPECT_NEAR(c.moving.geom.spacing_mm.x(), 3.0, 1e-9);
         for (auto metric : {CoregParams::Metric::Mattes, CoregParams::Metric::Nmi}) {
-            CoregParams p = fast_params();
-            p.metric = metric;
-            const CoregResult r = coregister(h.t1, c.moving, p);
-            const TransformError before = transform_error(c.T_moving_from_fixed, r.T_initial, h.brain);
-            const TransformError e = transform_error(c.T_moving_from_fixed, r.T_moving_from_fixed, h.brain);
+            const auto [r, before, e] = recover(h, c, metric);
             EXPECT_LT(e.mean_mm, 1.0) << "seed " << seed << " metric " << int(metric) << " initial " << before.mean_mm;
             EXPECT_GT(before.mean_mm, 3.0) << "seed " << seed;
             EXPECT_GT(r.overlap, 0.9);
