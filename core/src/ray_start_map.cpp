@@ -4,9 +4,37 @@
 #include <cmath>
 #include <limits>
 
+#include <tbb/parallel_for.h>
+
 #include "cortexfuse/core/renderer.hpp"
 
 namespace cf {
+
+void block_min_max(const std::vector<uint16_t>& q, const std::array<int, 3>& d, int B, std::array<int, 3>& nb,
+                   std::vector<uint16_t>& bmin, std::vector<uint16_t>& bmax) {
+    nb = {(d[0] + B - 1) / B, (d[1] + B - 1) / B, (d[2] + B - 1) / B};
+    const size_t n = size_t(nb[0]) * size_t(nb[1]) * size_t(nb[2]);
+    bmin.assign(n, std::numeric_limits<uint16_t>::max());
+    bmax.assign(n, 0);
+    const size_t sy = size_t(d[0]), sz = sy * size_t(d[1]);
+    tbb::parallel_for(0, nb[2], [&](int bz) {
+        for (int by = 0; by < nb[1]; ++by)
+            for (int bx = 0; bx < nb[0]; ++bx) {
+                uint16_t mn = std::numeric_limits<uint16_t>::max(), mx = 0;
+                for (int k = std::max(0, bz * B - 1); k <= std::min(d[2] - 1, (bz + 1) * B); ++k)
+                    for (int j = std::max(0, by * B - 1); j <= std::min(d[1] - 1, (by + 1) * B); ++j) {
+                        const uint16_t* row = q.data() + size_t(k) * sz + size_t(j) * sy;
+                        for (int i = std::max(0, bx * B - 1); i <= std::min(d[0] - 1, (bx + 1) * B); ++i) {
+                            mn = std::min(mn, row[i]);
+                            mx = std::max(mx, row[i]);
+                        }
+                    }
+                const size_t b = (size_t(bz) * size_t(nb[1]) + size_t(by)) * size_t(nb[0]) + size_t(bx);
+                bmin[b] = mn;
+                bmax[b] = mx;
+            }
+    });
+}
 
 std::vector<std::array<int, 3>> frontier_bricks(const std::vector<uint8_t>& visible, const std::array<int, 3>& n) {
     std::vector<std::array<int, 3>> out;

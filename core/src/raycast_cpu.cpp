@@ -92,26 +92,7 @@ public:
             q_[i] = uint16_t(std::clamp(x, 0.0, double(kLutSize - 1)));
         }
         // Brick min/max including a one-voxel apron, since trilinear samples reach it.
-        nb_ = {(d[0] + kBrick - 1) / kBrick, (d[1] + kBrick - 1) / kBrick, (d[2] + kBrick - 1) / kBrick};
-        brick_min_.assign(size_t(nb_[0]) * nb_[1] * nb_[2], uint16_t(kLutSize - 1));
-        brick_max_.assign(brick_min_.size(), 0);
-        tbb::parallel_for(0, nb_[2], [&](int bz) {
-            for (int by = 0; by < nb_[1]; ++by)
-                for (int bx = 0; bx < nb_[0]; ++bx) {
-                    uint16_t mn = kLutSize - 1, mx = 0;
-                    for (int k = std::max(0, bz * kBrick - 1); k <= std::min(d[2] - 1, (bz + 1) * kBrick); ++k)
-                        for (int j = std::max(0, by * kBrick - 1); j <= std::min(d[1] - 1, (by + 1) * kBrick); ++j) {
-                            const uint16_t* row = q_.data() + geom_.linear(0, j, k);
-                            for (int i = std::max(0, bx * kBrick - 1); i <= std::min(d[0] - 1, (bx + 1) * kBrick); ++i) {
-                                mn = std::min(mn, row[i]);
-                                mx = std::max(mx, row[i]);
-                            }
-                        }
-                    const size_t b = (size_t(bz) * nb_[1] + by) * nb_[0] + bx;
-                    brick_min_[b] = mn;
-                    brick_max_[b] = mx;
-                }
-        });
+        block_min_max(q_, d, kBrick, nb_, brick_min_, brick_max_);
         set_transfer_function(tf);
         // Index-space geometry.
         index_from_world_ = geom_.index_from_world().matrix().cast<float>();

@@ -68,33 +68,6 @@ uint16_t half_of_half_int(int n) {
     return uint16_t(sign | uint16_t((e + 25) << 10) | uint16_t(m & 0x3ffu));
 }
 
-// Per block of `B`^3 voxels, the least and greatest quantised value over the block and a
-// one-voxel apron (the reach of trilinear interpolation), x fastest.
-void block_min_max(const std::vector<uint16_t>& q, const VolumeGeometry& g, int B, std::array<int, 3>& nb,
-                   std::vector<uint16_t>& bmin, std::vector<uint16_t>& bmax) {
-    const auto& d = g.dims;
-    nb = {(d[0] + B - 1) / B, (d[1] + B - 1) / B, (d[2] + B - 1) / B};
-    const size_t n = size_t(nb[0]) * nb[1] * nb[2];
-    bmin.assign(n, uint16_t(kLutSize - 1));
-    bmax.assign(n, 0);
-    for (int bz = 0; bz < nb[2]; ++bz)
-        for (int by = 0; by < nb[1]; ++by)
-            for (int bx = 0; bx < nb[0]; ++bx) {
-                uint16_t mn = kLutSize - 1, mx = 0;
-                for (int k = std::max(0, bz * B - 1); k <= std::min(d[2] - 1, (bz + 1) * B); ++k)
-                    for (int j = std::max(0, by * B - 1); j <= std::min(d[1] - 1, (by + 1) * B); ++j) {
-                        const uint16_t* row = q.data() + g.linear(0, j, k);
-                        for (int i = std::max(0, bx * B - 1); i <= std::min(d[0] - 1, (bx + 1) * B); ++i) {
-                            mn = std::min(mn, row[i]);
-                            mx = std::max(mx, row[i]);
-                        }
-                    }
-                const size_t b = (size_t(bz) * nb[1] + by) * nb[0] + bx;
-                bmin[b] = mn;
-                bmax[b] = mx;
-            }
-}
-
 struct Layer {
     VolumeGeometry geom;
     double lo = 0, hi = 1;  // robust range: quantised 0..4095 spans it
@@ -174,8 +147,8 @@ public:
             if (mask && !mask->voxels[i]) x = 0;
             q[i] = uint16_t(std::clamp(x, 0.0, double(kLutSize - 1)));
         }
-        block_min_max(q, v.geom, kBrick, L->nb, L->brick_min, L->brick_max);
-        block_min_max(q, v.geom, kCell, L->nc, L->cell_min, L->cell_max);
+        block_min_max(q, v.geom.dims, kBrick, L->nb, L->brick_min, L->brick_max);
+        block_min_max(q, v.geom.dims, kCell, L->nc, L->cell_min, L->cell_max);
         L->volume.reset(gen_texture());
         glBindTexture(GL_TEXTURE_3D, L->volume.get());
         glTexStorage3D(GL_TEXTURE_3D, 1, GL_R16, d[0], d[1], d[2]);

@@ -67,6 +67,12 @@ public:
 std::unique_ptr<Renderer> make_cpu_renderer(const Volume& volume, const TransferFunction& tf,
                                             const LabelVolume* mask = nullptr);
 
+/// Per block of `block`^3 voxels of the x-fastest grid `q` (dims), the least and greatest value
+/// over the block and a one-voxel apron (the reach of trilinear interpolation); `n_blocks` gets
+/// the grid of blocks (x fastest). Shared by the ray casters (CPU and GLSL).
+void block_min_max(const std::vector<uint16_t>& q, const std::array<int, 3>& dims, int block, std::array<int, 3>& n_blocks,
+                   std::vector<uint16_t>& min, std::vector<uint16_t>& max);
+
 /// Empty-space map shared by the ray casters (CPU and GLSL): for each brick of a grid of
 /// `n_bricks` (x fastest), the Chebyshev (L-infinity) distance in bricks to the nearest brick
 /// with `visible` != 0, capped at `cap` (0 = visible). A ray in a brick at distance d crosses
