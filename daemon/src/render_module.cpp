@@ -11,6 +11,7 @@
 #include <opencv2/imgproc.hpp>
 #include <optional>
 #include <sstream>
+#include <string_view>
 
 #include "cortexfuse/core/case.hpp"
 #include "cortexfuse/core/error.hpp"
@@ -226,6 +227,25 @@ struct RenderModule::Scene {
     cv::Mat texture_bgra;
     Intrinsics photo_K;  // the fused view's photo camera and ROI alpha (photo size; empty: no ROI),
     cv::Mat roi_alpha;   // kept for the CT layer's craniotomy (craniotomy_keep_mask)
+
+    /// After a GL failure (a lost context, a GL error): every GL renderer goes, so the next
+    /// request makes new ones (renderer.kind auto: a CPU one when GL cannot be made any more).
+    void drop_gl_renderers() {
+        auto drop = [](std::unique_ptr<Renderer>& r) {
+            if (r && std::string_view(r->name()) == "gl") r.reset();
+        };
+        drop(masked);
+        drop(whole);
+        for (auto& c : cases) {
+            drop(c.masked);
+            drop(c.whole);
+        }
+        fusion.reset();
+        fusion_key.clear();
+        fusion_prev.reset();
+        fusion_prev_key.clear();
+        last_view_key.clear();
+    }
 };
 
 RenderModule::RenderModule(const DaemonConfig& c) : cfg_(c) {}
@@ -823,18 +843,30 @@ void RenderModule::loop() {
             job->result.set_value(std::move(out));
         } catch (...) {
             bool superseded = false;  // given up for a newer view: counted apart, not a failure
+            std::exception_ptr err = std::current_exception();
             try {
                 throw;
             } catch (const ApiError& e) {
                 superseded = e.code == "superseded";
+            } catch (const GlError& e) {
+                sc.drop_gl_renderers();
+                const std::string what = std::string("render: the GL renderer failed (") + e.what() +
+                                         "); the next request makes a new renderer";
+                log(LogLevel::error, "render", what);
+                {
+                    std::lock_guard lk(mu_);
+                    backend_reason_ = what;
+                    ++gl_failures_;
+                }
+                err = std::make_exception_ptr(ApiError(503, "unavailable", what));
             } catch (...) {
             }
             if (!superseded) {
                 std::lock_guard lk(mu_);
                 ++failures_;
             }
-            if (job->mode == Job::Mode::pick) job->pick_result.set_exception(std::current_exception());
-            else job->result.set_exception(std::current_exception());
+            if (job->mode == Job::Mode::pick) job->pick_result.set_exception(err);
+            else job->result.set_exception(err);
         }
     }
     std::lock_guard lk(mu_);
@@ -867,6 +899,7 @@ nlohmann::json RenderModule::status_json() const {
                      {"banded_renders", banded_},
                      {"superseded", superseded_},
                      {"superseded_in_flight", superseded_in_flight_},
+                     {"gl_failures", gl_failures_},
                      {"queued", queue_.size()}};
     if (!error_.empty()) j["error"] = error_;
     return j;

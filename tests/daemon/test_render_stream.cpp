@@ -127,3 +127,40 @@ TEST(RenderStream, ABadStreamIsRefusedNamingIt) {
     ok["stream"] = std::string("case-view_1.a:") + std::string(50, 'z');
     EXPECT_EQ(post("/api/render", ok).status, 200);
 }
+
+// A GL failure mid-run (the context lost at the renderer's second frame, injected through EGL
+// by CF_GL_LOSE_CONTEXT_AT_FRAME): that request gets 503 naming the lost context, the render
+// module drops its GL renderers, and the next request is drawn by a new renderer with the same
+// picture as before the loss. A daemon of its own with renderer.kind gl; skipped without GL.
+TEST(RenderStream, ALostGlContextFailsOneRequestNamingItAndTheNextIsDrawnAfresh) {
+    setenv("CF_GL_LOSE_CONTEXT_AT_FRAME", "2", 1);
+    struct Unset {
+        ~Unset() { unsetenv("CF_GL_LOSE_CONTEXT_AT_FRAME"); }
+    } unset;
+    const fs::path state = fs::temp_directory_path() / ("cf_daemon_gl_loss_" + std::to_string(::getpid()));
+    fs::remove_all(state);
+    {
+        json c = base_test_config(state, "gl");
+        c["tracker"]["enabled"] = false;
+        c["camera"]["backend"] = "none";
+        TestDaemon d(state, c);
+        wait_for_volume(d);
+        const json v = view(96, 72);
+        const Reply first = d.post("/api/render", v);
+        if (first.status == 503 && first.body.find("GL") != std::string::npos && d.get("/api/status").j["modules"]["renderer"]["renders"] == 0)
+            GTEST_SKIP() << "no GL here: " << first.body;
+        ASSERT_EQ(first.status, 200) << first.body;
+        const Reply lost = d.post("/api/render", v);
+        EXPECT_EQ(lost.status, 503) << lost.body;
+        EXPECT_NE(lost.body.find("GL context is lost or gone"), std::string::npos) << lost.body;
+        EXPECT_NE(lost.body.find("the next request makes a new renderer"), std::string::npos) << lost.body;
+        const json st = d.get("/api/status").j["modules"]["renderer"];
+        EXPECT_EQ(st["gl_failures"], 1) << st.dump();
+        EXPECT_NE(st["backend_reason"].get<std::string>().find("lost or gone"), std::string::npos) << st.dump();
+        const Reply again = d.post("/api/render", v);
+        ASSERT_EQ(again.status, 200) << again.body;
+        EXPECT_EQ(mean_abs_diff(decode(first), decode(again)), 0.0) << "a new GL renderer draws the same picture";
+        EXPECT_EQ(d.get("/api/status").j["modules"]["renderer"]["backend"], "gl");
+    }
+    fs::remove_all(state);
+}

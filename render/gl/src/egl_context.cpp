@@ -159,11 +159,20 @@ EglContext::~EglContext() {
     }
 }
 
+void EglContext::lose() {
+    std::lock_guard lock(egl_mutex());
+    if (eglGetCurrentContext() == context_) eglMakeCurrent(display_, EGL_NO_SURFACE, EGL_NO_SURFACE, EGL_NO_CONTEXT);
+    eglDestroyContext(display_, context_);  // the handle stays: using it is what fails
+}
+
 void EglContext::make_current() const {
     if (eglGetCurrentContext() == context_) return;
     if (!eglMakeCurrent(display_, EGL_NO_SURFACE, EGL_NO_SURFACE, context_)) {
         const EGLint e = eglGetError();
-        throw GlError("eglMakeCurrent failed: " + egl_error_name(e) + (e == EGL_CONTEXT_LOST ? " (context lost)" : ""));
+        // A lost (reset) or destroyed context cannot be made current again: say so, so that the
+        // owner drops this renderer and makes a new one (or, with auto, a CPU one).
+        throw GlError("the GL context is lost or gone (eglMakeCurrent: " + egl_error_name(e) +
+                      "); the GL renderer must be made again");
     }
 }
 

@@ -22,6 +22,9 @@ public:
     const GlInfo& info() const { return info_; }
     /// True when the context was created with reset notification (lost-context detection).
     bool robust() const { return robust_; }
+    /// Fault injection (CF_GL_LOSE_CONTEXT_AT_FRAME): destroys the context through EGL as a
+    /// driver reset or a vanished GPU would; every later make_current() throws GlError.
+    void lose();
 
 private:
     EGLDisplay display_ = EGL_NO_DISPLAY;

@@ -39,8 +39,10 @@ std::string raycast_fragment_source(int layers) {
     std::string src = shader_source("raycast.frag");
     const size_t eol = src.find('\n');
     src.insert(eol + 1, "#define NLAYERS " + std::to_string(layers) + "\n#define CELL " + std::to_string(kCell) + "\n");
+    // Test hooks: CF_GL_BREAK_SHADER=link leaves the fragment stage without main (it compiles,
+    // the program does not link); any other value breaks the compile.
     if (const char* e = std::getenv("CF_GL_BREAK_SHADER"); e && *e && std::strcmp(e, "0") != 0)
-        src.insert(eol + 1, "this is not GLSL;\n");  // test hook: the compile-error path
+        src.insert(eol + 1, std::strcmp(e, "link") == 0 ? "#define main cf_main_renamed_by_CF_GL_BREAK_SHADER\n" : "this is not GLSL;\n");
     return src;
 }
 
@@ -110,6 +112,9 @@ public:
         glTexStorage2D(GL_TEXTURE_2D, 1, GL_RGBA32F, kLutSize, kMaxLayers);
         set_nearest(GL_TEXTURE_2D);
         rays_.reset(gen_texture());
+        glGetIntegerv(GL_MAX_3D_TEXTURE_SIZE, &max_3d_texture_size_);
+        // Test hook: the context is lost at this renderer's Nth frame (the owners' recovery path).
+        if (const char* e = std::getenv("CF_GL_LOSE_CONTEXT_AT_FRAME"); e && *e) lose_context_at_frame_ = std::atol(e);
         check_gl("GL renderer setup");
     }
 
@@ -118,7 +123,29 @@ public:
         try {
             ctx_.make_current();
         } catch (...) {
+            abandon_gl_objects();
         }
+    }
+
+    // The context is lost or gone: its objects went with it, and deleting them now would call GL
+    // with no context current, or another renderer's.
+    void abandon_gl_objects() {
+        for (auto& [n, P] : programs_) P.prog.abandon();
+        for (auto& L : layers_) {
+            L->volume.abandon();
+            L->bricks.abandon();
+            L->gradient.abandon();
+        }
+        for (Texture* t : {&mesh_tex_, &lut_, &rays_, &out_rgb_, &out_grey_, &out_depth_, &out_cov_, &mesh_rgb_, &mesh_z_}) t->abandon();
+        mesh_prog_.abandon();
+        empty_vao_.abandon();
+        mesh_vao_.abandon();
+        mesh_vbo_.abandon();
+        mesh_ebo_.abandon();
+        start_buf_.abandon();
+        mesh_depth_.abandon();
+        fbo_.abandon();
+        mesh_fbo_.abandon();
     }
 
     const char* name() const override { return "gl"; }
@@ -132,6 +159,12 @@ public:
         if (v.voxels.size() != v.geom.voxel_count() || v.geom.voxel_count() == 0)
             throw InputError("volume", "empty or inconsistent with its dimensions");
         ctx_.make_current();
+        // Said before anything is allocated: glTexStorage3D would only say GL_INVALID_VALUE.
+        const auto& dims = v.geom.dims;
+        if (std::max({dims[0], dims[1], dims[2]}) > max_3d_texture_size_)
+            throw GlError("volume of " + std::to_string(dims[0]) + "x" + std::to_string(dims[1]) + "x" + std::to_string(dims[2]) +
+                          " voxels: larger than this GL's 3D textures (GL_MAX_3D_TEXTURE_SIZE " +
+                          std::to_string(max_3d_texture_size_) + " voxels per side); resample it or use the CPU renderer");
         auto L = std::make_unique<Layer>();
         L->geom = v.geom;
         L->settings = settings;
@@ -269,6 +302,7 @@ public:
     void render(const Intrinsics& K, const Pose& T, const RenderOptions& opt, RenderImage& out) override {
         if (K.width <= 0 || K.height <= 0) throw InputError("intrinsics", "image size must be positive");
         if (!(opt.sample_distance_mm > 0)) throw InputError("sample distance", "must be positive");
+        if (++frames_ == lose_context_at_frame_) ctx_.lose();
         ctx_.make_current();
         prepare_targets(K);
         const Eigen::Matrix4d Tw = T.inverse();  // world_from_camera
@@ -648,6 +682,8 @@ private:
     bool mesh_textured_ = false;
     std::vector<std::unique_ptr<Layer>> layers_;
     int uploads_ = 0;
+    GLint max_3d_texture_size_ = 0;
+    long frames_ = 0, lose_context_at_frame_ = 0;
     Texture lut_, rays_;
     RayStartMap start_map_;  // rays made with rays_, cells rebuilt each frame
     Buffer start_buf_;       // its cells for the shader (binding 0)

@@ -67,7 +67,10 @@ GLuint build_program(const std::string& name, const std::string& vs, const std::
 }
 
 void check_gl(const char* where) {
-    if (glGetGraphicsResetStatus() != GL_NO_ERROR) throw GlError(std::string(where) + ": the GL context was lost (reset)");
+    if (const GLenum r = glGetGraphicsResetStatus(); r != GL_NO_ERROR)
+        throw GlError(std::string(where) + ": the GL context was lost (" +
+                      (r == GL_GUILTY_CONTEXT_RESET ? "GL_GUILTY_CONTEXT_RESET" : r == GL_INNOCENT_CONTEXT_RESET ? "GL_INNOCENT_CONTEXT_RESET" : "GL_UNKNOWN_CONTEXT_RESET") +
+                      "); the GL renderer must be made again");
     const GLenum e = glGetError();
     if (e == GL_NO_ERROR) return;
     const char* n = e == GL_INVALID_ENUM ? "GL_INVALID_ENUM"

@@ -33,6 +33,9 @@ public:
         if (id_) Delete(id_);
         id_ = id;
     }
+    /// Forgets the name without deleting it: for a context that is lost or gone, whose objects
+    /// went with it (deleting then would call GL with no context, or the wrong one, current).
+    void abandon() { id_ = 0; }
     GLuint get() const { return id_; }
     explicit operator bool() const { return id_ != 0; }
 
