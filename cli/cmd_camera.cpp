@@ -12,6 +12,8 @@
 #include "cortexfuse/core/case.hpp"
 #include "cortexfuse/core/error.hpp"
 #include "cortexfuse/drivers/camera.hpp"
+#include "cortexfuse/drivers/sim/tracked_camera.hpp"
+#include "cortexfuse/drivers/sim/tracker_sim.hpp"
 
 namespace cf::cli {
 
@@ -20,6 +22,9 @@ namespace {
 struct CameraOpts {
     std::string backend = "gphoto2", device, out, truth, file, pose;
     std::string sim_size = "750x500";
+    // The simulated camera on the tracker simulator's camera tool (docs/camera.md).
+    std::string sim_pose = "orbit", sim_trajectory, sim_hand_eye;
+    std::uint64_t sim_tracker_seed = 1;
     camera::SimCameraConfig sim;
 };
 
@@ -112,6 +117,17 @@ void add_camera(CLI::App& app) {
     capture->add_option("--out", o->out, "photo file: .jpg (as delivered), a raw extension, .png or .tif")->required();
     capture->add_option("--truth", o->truth, "sim: also write the true pose and camera as JSON here");
     capture->add_option("--pose", o->pose, "sim: photograph from this pose (JSON {\"T_camera_from_world\": 4x4})");
+    capture->add_option("--sim-pose", o->sim_pose,
+                        "sim: orbit (scripted, round the craniotomy) or tracker (from the pose an in-process tracker simulator "
+                        "reports for its camera tool CF-CAMERA, composed with --sim-hand-eye and the scene's patient registration)")
+        ->check(CLI::IsMember({"orbit", "tracker"}))
+        ->capture_default_str();
+    capture->add_option("--sim-tracker-seed", o->sim_tracker_seed, "sim, --sim-pose tracker: the tracker simulator's seed")
+        ->capture_default_str();
+    capture->add_option("--sim-trajectory", o->sim_trajectory,
+                        "sim, --sim-pose tracker: tracker simulator trajectory file (`<t_s> <part> tx ty tz qw qx qy qz`, e.g. CF-CAMERA)");
+    capture->add_option("--sim-hand-eye", o->sim_hand_eye,
+                        "sim, --sim-pose tracker: T_optics_from_tool 'tx ty tz qw qx qy qz' (mm); default: plate on top, lens 45 mm ahead, 30 mm below");
     capture->callback([o] {
         run_guarded("camera capture", [o]() -> int {
             std::optional<Pose> pose;
@@ -119,14 +135,50 @@ void add_camera(CLI::App& app) {
                 if (o->backend != "sim") throw InputError("camera capture --pose", "only the simulated camera can be placed");
                 pose = parse_pose(read_json_file(o->pose), o->pose);  // checked before the scene is built
             }
+            const bool tracked = o->sim_pose == "tracker";
+            if (tracked && o->backend != "sim")
+                throw InputError("camera capture --sim-pose", "tracker applies to the simulated camera only (--backend sim)");
+            if (tracked && pose) throw InputError("camera capture --sim-pose", "tracker and --pose both place the camera: give one");
+            sim::TrackedCameraRig rig;
+            std::unique_ptr<sim::TrackerSimulator> tracker;
+            if (tracked) {  // checked before the scene is built
+                if (!o->sim_hand_eye.empty()) rig.T_optics_from_tool = sim::parse_pose7(o->sim_hand_eye, "camera capture --sim-hand-eye");
+                try {
+                    sim::TrackerSimConfig tc;
+                    tc.camera_tool = true;
+                    tc.seed = o->sim_tracker_seed;
+                    tc.trajectory_file = o->sim_trajectory;
+                    tracker = std::make_unique<sim::TrackerSimulator>(tc);
+                } catch (const std::invalid_argument& e) {
+                    throw InputError("camera capture --sim-trajectory", e.what());
+                }
+            }
             auto cam = open_camera(*o);
             if (pose) dynamic_cast<camera::SimCamera&>(*cam).set_pose(pose);
+            std::uint32_t frame = 0;
+            if (tracked) {
+                auto& sc = dynamic_cast<camera::SimCamera&>(*cam);
+                try {
+                    sim::register_rig_to_view(rig, *tracker, Eigen::Isometry3d(sc.home_pose()));
+                    tracker->start();
+                    frame = tracker->current_frame();
+                    sc.set_pose_source(sim::tracked_camera_pose_source(*tracker, rig));
+                } catch (const std::exception& e) {
+                    throw InputError("camera capture --sim-pose tracker", e.what());
+                }
+            }
             const camera::Photo p = cam->capture();
             nlohmann::json truth;  // built before anything is written
             if (!o->truth.empty()) {
                 if (!p.T_camera_from_world || !p.intrinsics)
                     throw InputError("camera capture --truth", "only the simulated camera knows its true pose");
                 truth = {{"T_camera_from_world", pose_to_json(*p.T_camera_from_world)}, {"camera", camera_to_json(*p.intrinsics)}};
+                truth["pose_source"] = tracked ? "tracker" : (pose ? "pose" : "orbit");
+                if (tracked) {  // the scene's transforms, frames in the names (docs/camera.md)
+                    truth["T_optics_from_tool"] = pose_to_json(rig.T_optics_from_tool.matrix());
+                    truth["T_reference_from_image"] = pose_to_json(rig.T_reference_from_image.matrix());
+                    truth["tracker_frame_at_capture_start"] = frame;
+                }
             }
             write_photo(p, o->out);
             if (!o->truth.empty()) write_file_atomic(o->truth, truth.dump(2) + "\n");

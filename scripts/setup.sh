@@ -11,7 +11,7 @@ PACKAGES=(
   elastix time
   python3-nibabel python3-scipy python3-pil
   clang
-  libgphoto2-dev libraw-dev libv4l-dev libudev-dev
+  libgphoto2-dev libraw-dev libv4l-dev libudev-dev umockdev libumockdev-dev
   libegl-dev libepoxy-dev libegl-mesa0 libgl1-mesa-dri
   xvfb xauth jq curl
   ccache

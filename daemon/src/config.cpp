@@ -8,6 +8,7 @@
 #include <sstream>
 
 #include "cortexfuse/core/install_paths.hpp"
+#include "cortexfuse/drivers/sim/tracked_camera.hpp"
 #include "cortexfuse/drivers/tracker/transport.hpp"
 
 #ifndef CF_DATA_DIR
@@ -57,6 +58,8 @@ std::vector<OptionSpec> make_options() {
         {"auth.session_ttl_s", T::integer, 60, 2592000, {}, 43200, "Lifetime of a login session (POST /api/login), seconds"},
         {"data.t1", T::string, 0, 0, {}, data + "/t1_head_mne_ecog.nii.gz", "The MRI rendered by /api/render and used for the phantom cases"},
         {"data.brain_mask", T::string, 0, 0, {}, data + "/brainmask_mne_ecog_binary.nii.gz", "Its brain mask (brain-only presets and phantom cases)"},
+        {"media.removable_root", T::string, 0, 0, {}, "/media",
+         "Folder where removable media (USB sticks) are mounted; the UI lists volumes and DICOM series below it and imports one into a case (docs/api/case-data.md)"},
         {"tracker.enabled", T::boolean, 0, 0, {}, true, "Run the tracker module"},
         {"tracker.nice", T::integer, -20, 19, {}, -10,
          "Nice value the tracker's driver and simulator threads start with (below 0 needs CAP_SYS_NICE; without it they keep the daemon's and a warning is logged)"},
@@ -72,11 +75,17 @@ std::vector<OptionSpec> make_options() {
         {"tracker.sim_rate_hz", T::number, 20, 250, {}, 60, "Simulator frame rate: 20, 60 or 250"},
         {"tracker.sim_seed", T::integer, 0, 2147483647, {}, 1, "Simulator seed (noise, visibility)"},
         {"tracker.sim_faults", T::string, 0, 0, {}, "", "Simulator random faults, e.g. bit_flip=0.01,drop=0.01 (docs/tracker.md)"},
+        {"tracker.sim_camera_tool", T::boolean, 0, 0, {}, false,
+         "Add a tracked camera (CF-CAMERA) to the simulator's scene; the simulated camera then photographs from its pose (camera.sim_pose)"},
         {"tracker.baud", T::integer, 9600, 921600, {}, 115200, "Serial rate after COMM: 9600, 38400, 57600, 115200, 230400 or 921600"},
         {"tracker.roms", T::string_list, 0, 0, {}, nlohmann::json::array(),
          "Passive tool definitions (.rom files) to load; empty with the simulator: its reference and pointer"},
         {"camera.backend", T::string, 0, 0, {"sim", "gphoto2", "v4l2", "none"}, "sim", "Camera backend"},
         {"camera.device", T::string, 0, 0, {}, "", "Device id as the backend lists it; empty: the first one"},
+        {"camera.sim_pose", T::string, 0, 0, {"auto", "orbit", "tracker"}, "auto",
+         "Simulated camera's pose per photo: tracker = the tracker simulator's camera tool composed with camera.sim_T_optics_from_tool and the scene's patient registration (needs tracker.source sim and tracker.sim_camera_tool); orbit = a scripted orbit round the craniotomy; auto = tracker when the simulator has the camera tool, else orbit"},
+        {"camera.sim_T_optics_from_tool", T::string, 0, 0, {}, "",
+         "Simulated tracked camera's hand-eye transform, camera tool's marker frame to its optics, 'tx ty tz qw qx qy qz' (mm); empty: a plate on top of the camera, lens 45 mm ahead and 30 mm below (docs/camera.md)"},
         {"renderer.kind", T::string, 0, 0, {"auto", "gl", "cpu"}, "auto", "Ray caster for views and registration: auto tries GL (EGL, off-screen) then the CPU"},
         {"renderer.max_width", T::integer, 16, 8192, {}, 2048, "Largest view width a render request may ask for"},
         {"renderer.max_height", T::integer, 16, 8192, {}, 2048, "Largest view height"},
@@ -229,6 +238,7 @@ DaemonConfig parse_config(const nlohmann::json& j, const std::string& source) {
     c.session_ttl_s = v["auth.session_ttl_s"].get<int>();
     c.t1_path = v["data.t1"].get<std::string>();
     c.brain_mask_path = v["data.brain_mask"].get<std::string>();
+    c.removable_media_root = v["media.removable_root"].get<std::string>();
     c.tracker_enabled = v["tracker.enabled"].get<bool>();
     c.tracker_nice = v["tracker.nice"].get<int>();
     c.tracker_rt_priority = v["tracker.rt_priority"].get<int>();
@@ -240,10 +250,13 @@ DaemonConfig parse_config(const nlohmann::json& j, const std::string& source) {
     c.tracker_sim_rate_hz = v["tracker.sim_rate_hz"].get<double>();
     c.tracker_sim_seed = v["tracker.sim_seed"].get<std::int64_t>();
     c.tracker_sim_faults = v["tracker.sim_faults"].get<std::string>();
+    c.tracker_sim_camera_tool = v["tracker.sim_camera_tool"].get<bool>();
     c.tracker_baud = v["tracker.baud"].get<int>();
     c.tracker_roms = v["tracker.roms"].get<std::vector<std::string>>();
     c.camera_backend = v["camera.backend"].get<std::string>();
     c.camera_device = v["camera.device"].get<std::string>();
+    c.camera_sim_pose = v["camera.sim_pose"].get<std::string>();
+    c.camera_sim_T_optics_from_tool = v["camera.sim_T_optics_from_tool"].get<std::string>();
     c.renderer = v["renderer.kind"].get<std::string>();
     c.render_max_width = v["renderer.max_width"].get<int>();
     c.render_max_height = v["renderer.max_height"].get<int>();
@@ -278,6 +291,18 @@ DaemonConfig parse_config(const nlohmann::json& j, const std::string& source) {
         if (!ok) throw ConfigError(where("tracker.baud"), std::to_string(c.tracker_baud) + " is not a rate the host and the device both know");
     }
     if (c.t1_path.empty()) throw ConfigError(where("data.t1"), "must not be empty");
+    if (c.camera_sim_pose == "tracker" && c.camera_backend == "sim" &&
+        !(c.tracker_enabled && c.tracker_source == "sim" && c.tracker_sim_camera_tool))
+        throw ConfigError(where("camera.sim_pose"),
+                          "'tracker' needs the tracker simulator's camera tool (tracker.enabled true, tracker.source sim, "
+                          "tracker.sim_camera_tool true)");
+    if (!c.camera_sim_T_optics_from_tool.empty()) {
+        try {
+            cf::sim::parse_pose7(c.camera_sim_T_optics_from_tool, "value");
+        } catch (const std::invalid_argument& e) {
+            throw ConfigError(where("camera.sim_T_optics_from_tool"), e.what());
+        }
+    }
     return c;
 }
 
@@ -307,6 +332,7 @@ nlohmann::json to_json(const DaemonConfig& c) {
             {"store", {{"dir", c.store_dir}, {"max_upload_bytes", c.max_upload_bytes}}},
             {"auth", {{"session_ttl_s", c.session_ttl_s}}},
             {"data", {{"t1", c.t1_path}, {"brain_mask", c.brain_mask_path}}},
+            {"media", {{"removable_root", c.removable_media_root}}},
             {"tracker",
              {{"enabled", c.tracker_enabled},
               {"nice", c.tracker_nice},
@@ -317,9 +343,14 @@ nlohmann::json to_json(const DaemonConfig& c) {
               {"sim_rate_hz", c.tracker_sim_rate_hz},
               {"sim_seed", c.tracker_sim_seed},
               {"sim_faults", c.tracker_sim_faults},
+              {"sim_camera_tool", c.tracker_sim_camera_tool},
               {"baud", c.tracker_baud},
               {"roms", c.tracker_roms}}},
-            {"camera", {{"backend", c.camera_backend}, {"device", c.camera_device}}},
+            {"camera",
+             {{"backend", c.camera_backend},
+              {"device", c.camera_device},
+              {"sim_pose", c.camera_sim_pose},
+              {"sim_T_optics_from_tool", c.camera_sim_T_optics_from_tool}}},
             {"renderer",
              {{"kind", c.renderer}, {"max_width", c.render_max_width}, {"max_height", c.render_max_height}, {"jpeg_quality", c.jpeg_quality}}},
             {"jobs",

@@ -47,6 +47,7 @@ void TrackerModule::start_threads() {
         simc.tcp_port = 0;
         simc.frame_rate_hz = cfg_.tracker_sim_rate_hz;
         simc.seed = std::uint64_t(cfg_.tracker_sim_seed);
+        simc.camera_tool = cfg_.tracker_sim_camera_tool;  // CF-CAMERA: the simulated camera may follow it (camera.sim_pose)
         // The simulator stands for the tracker's own hardware, which our load cannot slow down:
         // its thread gets the driver's priority (docs/tracker.md).
         simc.thread_priority = priority;

@@ -148,3 +148,32 @@ TEST(CameraLive, WithoutACameraAnswers503) {
     EXPECT_TRUE(d.stop());
     fs::remove_all(state);
 }
+
+// camera.sim_pose (docs/drivers.md): with the tracker simulator's camera tool in the scene the
+// simulated camera photographs from that tool's pose (the pose composition itself is tested in
+// tests/camera/test_tracked_sim_camera.cpp); without it, the scripted orbit.
+TEST(CameraLive, SimulatedCameraFollowsTheTrackerSimulatorsCameraTool) {
+    const fs::path state = fs::temp_directory_path() / ("cf_daemon_tracked_cam_" + std::to_string(::getpid()));
+    cf::test::RemoveDirGuard guard{state};
+    for (const bool tool : {true, false}) {
+        json c = config(state / (tool ? "tool" : "none"), "sim");
+        c["tracker"]["enabled"] = true;
+        c["tracker"]["source"] = "sim";
+        c["tracker"]["sim_camera_tool"] = tool;
+        c["tracker"]["rt_priority"] = 0;
+        c["tracker"]["nice"] = 0;
+        c["tracker"]["tty_worker_priority"] = 0;
+        c["camera"]["sim_pose"] = tool ? "tracker" : "auto";
+        Daemon d(parse_config(c, "test"));
+        d.start();
+        const int port = d.port();
+        httplib::Client cl("127.0.0.1", port);
+        cl.set_read_timeout(120, 0);
+        auto r = cl.Post("/api/camera/capture", "", "application/json");
+        ASSERT_TRUE(r);
+        EXPECT_EQ(r->status, 200) << r->body;
+        const json st = get_json(port, "/api/camera");
+        EXPECT_EQ(st.value("pose_source", std::string()), tool ? "tracker:CF-CAMERA" : "orbit") << st.dump();
+        EXPECT_TRUE(d.stop());
+    }
+}

@@ -84,6 +84,10 @@ TEST(DaemonConfig, EachBadValueIsRefusedNamingTheKey) {
         {"tracker.roms", "a.rom", "list of strings"},
         {"tracker.roms", json::array({1}), "list of strings"},
         {"camera.backend", "webcam", "one of sim, gphoto2, v4l2, none"},
+        {"camera.sim_pose", "gps", "one of auto, orbit, tracker"},
+        {"camera.sim_T_optics_from_tool", "1 2 3", "expected 'tx ty tz qw qx qy qz'"},
+        {"camera.sim_T_optics_from_tool", "0 0 0 2 0 0 0", "quaternion is not unit length"},
+        {"tracker.sim_camera_tool", "yes", "true or false"},
         {"renderer.kind", "vulkan", "one of auto, gl, cpu"},
         {"renderer.max_width", 8, "out of range"},
         {"renderer.jpeg_quality", 101, "out of range"},
@@ -112,6 +116,14 @@ TEST(DaemonConfig, CrossFieldRules) {
     EXPECT_NE(error_of(json{{"tracker", {{"source", "serial"}}}}).find("tracker.serial_port: must be set"), std::string::npos);
     EXPECT_NE(error_of(json{{"tracker", {{"source", "tcp"}}}}).find("tracker.tcp: must be set"), std::string::npos);
     EXPECT_NE(error_of(json{{"tracker", {{"source", "tcp"}, {"tcp", "nohost"}}}}).find("tracker.tcp: 'nohost' is not HOST:PORT"), std::string::npos);
+    // The simulated camera on the tracker simulator's camera tool needs that tool in the scene.
+    EXPECT_NE(error_of(json{{"camera", {{"sim_pose", "tracker"}}}})
+                  .find("camera.sim_pose: 'tracker' needs the tracker simulator's camera tool"),
+              std::string::npos);
+    EXPECT_NE(error_of(json{{"camera", {{"sim_pose", "tracker"}}}, {"tracker", {{"sim_camera_tool", true}, {"enabled", false}}}})
+                  .find("camera.sim_pose: 'tracker' needs"),
+              std::string::npos);
+    EXPECT_EQ(error_of(json{{"camera", {{"sim_pose", "tracker"}}}, {"tracker", {{"sim_camera_tool", true}}}}), "");
     // A disabled tracker does not need its device.
     EXPECT_EQ(error_of(json{{"tracker", {{"enabled", false}, {"source", "serial"}}}}), "");
     EXPECT_EQ(error_of(json{{"http", {{"listen", "0.0.0.0:0"}}}}), "");

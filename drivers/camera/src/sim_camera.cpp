@@ -78,6 +78,10 @@ public:
         std::lock_guard<std::mutex> lock(mu_);
         fixed_ = T;
     }
+    void set_pose_source(std::function<Pose()> source) override {
+        std::lock_guard<std::mutex> lock(mu_);
+        cfg_.pose_source = std::move(source);
+    }
 
     Photo capture(const Progress& progress) override {
         const auto t0 = std::chrono::steady_clock::now();
@@ -126,12 +130,14 @@ public:
 
 private:
     Pose next_pose() {
+        std::function<Pose()> source;
         {
             std::lock_guard<std::mutex> lock(mu_);
             if (fixed_) return *fixed_;
+            source = cfg_.pose_source;
         }
-        if (cfg_.pose_source) {
-            const Pose T = cfg_.pose_source();
+        if (source) {
+            const Pose T = source();
             if (!is_rigid(T)) throw CameraError("sim:0", "the pose source gave a non-rigid transform");
             return T;
         }
@@ -170,7 +176,7 @@ private:
     Pose home_ = Pose::Identity();
     Intrinsics K_;
     Eigen::Vector3d pivot_world_;
-    std::mutex mu_;  // guards fixed_ (set_pose may come from another thread than capture)
+    std::mutex mu_;  // guards fixed_ and cfg_.pose_source (set_pose / set_pose_source may come from another thread than capture)
     std::optional<Pose> fixed_;
     uint64_t orbit_index_ = 0;
     bool streaming_ = false;

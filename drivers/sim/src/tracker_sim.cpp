@@ -977,6 +977,8 @@ std::optional<ToolTruth> TrackerSimulator::truth(const std::string& part, std::u
     return impl_->truth(*i, frame);
 }
 
+std::uint32_t TrackerSimulator::current_frame() const { return impl_->frame_now(); }
+
 std::uint32_t TrackerSimulator::hold(const std::string& part, std::optional<Eigen::Isometry3d> T_tracker_from_tool, bool hidden) {
     const auto i = impl_->tool_index(part);
     if (!i) throw std::invalid_argument("sim hold: no tool '" + part + "' in the scene");

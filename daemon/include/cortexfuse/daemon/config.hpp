@@ -51,6 +51,7 @@ struct DaemonConfig {
     int session_ttl_s = 43200;
     // data
     std::string t1_path, brain_mask_path;
+    std::string removable_media_root = "/media";  ///< media.removable_root: where USB sticks are mounted
     // tracker
     bool tracker_enabled = true;
     int tracker_nice = -10;                  ///< nice value of the driver's (and simulator's) threads
@@ -62,11 +63,17 @@ struct DaemonConfig {
     double tracker_sim_rate_hz = 60;
     std::int64_t tracker_sim_seed = 1;
     std::string tracker_sim_faults;
+    bool tracker_sim_camera_tool = false;    ///< add the tracked camera (CF-CAMERA) to the simulator's scene
     int tracker_baud = 115200;
     std::vector<std::string> tracker_roms;
     // camera
     std::string camera_backend = "sim";      ///< sim | gphoto2 | v4l2 | none
     std::string camera_device;               ///< "" -> the first the backend lists
+    /// Where the simulated camera takes each photo from: auto (the tracker simulator's camera tool
+    /// when its scene has one, else the scripted orbit) | orbit | tracker (the camera tool, required).
+    std::string camera_sim_pose = "auto";
+    /// Hand-eye of the simulated tracked camera, "tx ty tz qw qx qy qz" (mm); "" -> cf::sim::default_T_optics_from_tool().
+    std::string camera_sim_T_optics_from_tool;
     // renderer
     std::string renderer = "auto";           ///< auto | gl | cpu
     int render_max_width = 2048, render_max_height = 2048;

@@ -162,6 +162,10 @@ public:
     virtual Intrinsics intrinsics() const = 0;
     /// Fixes the pose of the following captures (nullopt: back to pose_source / the orbit).
     virtual void set_pose(const std::optional<Pose>& T_camera_from_world) = 0;
+    /// Replaces SimCameraConfig::pose_source for the following captures (empty: the scripted
+    /// orbit). For a source that needs home_pose() first, e.g. the tracker simulator's camera tool
+    /// (cortexfuse/drivers/sim/tracked_camera.hpp). Any thread.
+    virtual void set_pose_source(std::function<Pose()> pose_source) = 0;
 };
 
 /// The simulated backend lists one camera, "sim:0". Opening it builds the phantom scene

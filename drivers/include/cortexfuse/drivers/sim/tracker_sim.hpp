@@ -111,6 +111,8 @@ public:
     /// Scene tool part names ("CF-REFERENCE", "CF-POINTER", optionally "CF-CAMERA").
     std::vector<std::string> tools() const;
     std::optional<ToolTruth> truth(const std::string& part, std::uint32_t frame_number) const;
+    /// The frame number the device is at now (what the next BX/TX reply carries). Any thread.
+    std::uint32_t current_frame() const;
     std::map<Fault, std::uint64_t> fault_counts() const;
     std::uint64_t total_faults() const;
     /// Beeps the device was asked for by valid BEEP commands (the sum of their n). Any thread.
