@@ -18,6 +18,7 @@
 #include "cortexfuse/core/case.hpp"
 #include "cortexfuse/core/error.hpp"
 #include "cortexfuse/core/volume.hpp"
+#include "scratch_dir.hpp"
 
 namespace cf::daemon {
 
@@ -69,36 +70,6 @@ std::string upload_name(const Request& r, const std::string& what, const std::ve
     for (const auto& e : exts) list += (list.empty() ? "" : ", ") + e;
     throw bad(what + " name '" + name + "'", "must end in " + list);
 }
-
-/// A scratch folder under work_dir, removed with its content when it goes out of scope.
-struct Scratch {
-    fs::path dir;
-    Scratch(const fs::path& work_dir, const std::string& tag) {
-        static std::atomic<std::uint64_t> counter{0};
-        dir = work_dir / (tag + "_" + std::to_string(::getpid()) + "_" + std::to_string(++counter));
-        std::error_code ec;
-        fs::create_directories(dir, ec);
-        if (ec) throw ApiError(500, "io_error", "work folder " + dir.string() + ": " + ec.message());
-    }
-    ~Scratch() {
-        std::error_code ec;
-        fs::remove_all(dir, ec);
-    }
-    /// `message` without this folder's path (errors name the uploaded file, not the scratch).
-    std::string strip(std::string message) const {
-        const std::string prefix = dir.string() + "/";
-        for (std::size_t k; (k = message.find(prefix)) != std::string::npos;) message.erase(k, prefix.size());
-        return message;
-    }
-    fs::path write(const std::string& name, const std::string& bytes) const {
-        const fs::path p = dir / name;
-        std::ofstream o(p, std::ios::binary | std::ios::trunc);
-        o.write(bytes.data(), std::streamsize(bytes.size()));
-        o.close();
-        if (!o) throw ApiError(500, "io_error", "work folder " + dir.string() + ": cannot write " + name);
-        return p;
-    }
-};
 
 std::string read_file(const fs::path& p) {
     std::ifstream in(p, std::ios::binary);

@@ -24,6 +24,7 @@
 #include "cortexfuse/daemon/jobs.hpp"
 #include "cortexfuse/daemon/log.hpp"
 #include "cortexfuse/drivers/camera.hpp"
+#include "cortexfuse/drivers/sim/tracked_camera.hpp"
 #include "cortexfuse/render/renderer_factory.hpp"
 #include "case_api.hpp"
 #include "case_jobs.hpp"
@@ -32,6 +33,9 @@
 #include "navigation_api.hpp"
 #include "render_module.hpp"
 #include "tags_api.hpp"
+#include "landmark_pose_api.hpp"
+#include "thumbnail_api.hpp"
+#include "media_api.hpp"
 #include "tracker_module.hpp"
 
 namespace cf::daemon {
@@ -58,7 +62,9 @@ namespace {
 /// needs more stack than a connection thread has). Callers wait for their capture.
 class CameraModule {
 public:
-    explicit CameraModule(const DaemonConfig& c) : cfg_(c) {
+    /// `tracker` (may be null, outlives this): its simulator's camera tool places the simulated
+    /// camera (camera.sim_pose).
+    CameraModule(const DaemonConfig& c, const TrackerModule* tracker) : cfg_(c), tracker_(tracker) {
         thread_ = std::thread([this] { loop(); });
     }
     ~CameraModule() { stop(); }
@@ -74,6 +80,7 @@ public:
     nlohmann::json status_json() const {
         std::lock_guard lk(mu_);
         nlohmann::json j{{"backend", cfg_.camera_backend}, {"device", cfg_.camera_device}, {"state", state_}, {"live", live_on_.load()}};
+        if (!pose_source_.empty()) j["pose_source"] = pose_source_;
         if (!error_.empty()) j["last_error"] = error_;
         if (!model_.empty()) {
             j["model"] = model_;
@@ -236,7 +243,9 @@ private:
             id = list.front().id;
         }
         try {
-            cam_ = backend->open(id);
+            auto cam = backend->open(id);
+            attach_tracked_pose(*cam);
+            cam_ = std::move(cam);
         } catch (...) {
             set_state("failed");
             throw;
@@ -247,6 +256,32 @@ private:
         state_ = "open";
         model_ = info.model;
         id_ = info.id;
+    }
+    /// camera.sim_pose: the simulated camera photographs from the tracker simulator's camera tool
+    /// (composed with the hand-eye transform and the scene's patient registration, chosen so that
+    /// the tool's rest pose gives the scene's home framing; cf::sim::tracked_camera_pose_source),
+    /// else from its scripted orbit. "tracker" without the camera tool is refused by the config.
+    void attach_tracked_pose(cf::camera::Camera& cam) {
+        auto* sim_cam = dynamic_cast<cf::camera::SimCamera*>(&cam);
+        const bool has_tool = cfg_.tracker_enabled && cfg_.tracker_source == "sim" && cfg_.tracker_sim_camera_tool;
+        if (!sim_cam || cfg_.camera_sim_pose == "orbit" || !has_tool) {
+            std::lock_guard lk(mu_);
+            pose_source_ = sim_cam ? "orbit" : "";
+            return;
+        }
+        cf::sim::TrackerSimulator* sim = tracker_ ? tracker_->simulator() : nullptr;
+        if (!sim) throw cf::camera::CameraError("sim:0", "camera.sim_pose: the tracker simulator has not started yet");
+        try {
+            cf::sim::TrackedCameraRig rig;
+            if (!cfg_.camera_sim_T_optics_from_tool.empty())
+                rig.T_optics_from_tool = cf::sim::parse_pose7(cfg_.camera_sim_T_optics_from_tool, "camera.sim_T_optics_from_tool");
+            cf::sim::register_rig_to_view(rig, *sim, Eigen::Isometry3d(sim_cam->home_pose()));
+            sim_cam->set_pose_source(cf::sim::tracked_camera_pose_source(*sim, rig));
+        } catch (const std::invalid_argument& e) {
+            throw cf::camera::CameraError("sim:0", e.what());
+        }
+        std::lock_guard lk(mu_);
+        pose_source_ = "tracker:" + cf::sim::TrackedCameraRig{}.camera_part;
     }
     cf::camera::Photo capture_on_thread() {
         try {
@@ -273,6 +308,8 @@ private:
     DaemonConfig cfg_;
     mutable std::mutex mu_;  // status fields
     std::string state_ = "closed", error_, model_, id_;
+    std::string pose_source_;  // the simulated camera's: "orbit" or "tracker:CF-CAMERA" (mu_)
+    const TrackerModule* tracker_ = nullptr;
     cf::camera::CameraStats stats_;
     std::unique_ptr<cf::camera::Backend> backend_;  // camera thread only
     std::unique_ptr<cf::camera::Camera> cam_;       // camera thread only
@@ -397,7 +434,7 @@ void Daemon::start() {
         ::setenv("LP_NUM_THREADS", std::to_string(JobQueue::resolve_threads(d.cfg.job_threads)).c_str(), 0);
     d.tracker = std::make_unique<TrackerModule>(d.cfg);
     d.render = std::make_unique<RenderModule>(d.cfg);
-    d.camera = std::make_unique<CameraModule>(d.cfg);
+    d.camera = std::make_unique<CameraModule>(d.cfg, d.tracker.get());
     d.jobs = std::make_unique<JobQueue>(JobQueue::Options{d.cfg.job_progress_hz, d.cfg.jobs_kept, d.cfg.job_threads, d.cfg.job_nice});
     d.http = std::make_unique<HttpServer>(d.cfg, d.registry);
     d.register_job_kinds();
@@ -405,7 +442,11 @@ void Daemon::start() {
     register_case_endpoints(d.registry, *d.store, d.cases_dir, d.work_dir, d.cfg.session_ttl_s);
     register_case_data_endpoints(d.registry, *d.store, d.work_dir, d.cfg.max_upload_bytes);
     register_tags_endpoints(d.registry, *d.store, d.work_dir);  // stimulation tags (tags_api.cpp)
-    NavigationOptions nav_options{d.cfg.t1_path};
+    register_landmark_pose_endpoints(d.registry, *d.store);     // landmarks' initial alignment (landmark_pose_api.cpp)
+    register_thumbnail_endpoints(d.registry, *d.store, d.work_dir);  // the archive's thumbnails (thumbnail_api.cpp)
+    register_media_endpoints(d.registry, *d.store, d.cfg.removable_media_root, d.work_dir, d.cfg.max_upload_bytes);  // USB sticks (media_api.cpp)
+    NavigationOptions nav_options;
+    nav_options.t1_path = d.cfg.t1_path;
     nav_options.work_dir = d.work_dir;
     register_navigation_endpoints(d.registry, *d.store, *d.tracker, nav_options);
     cf::db::CaseStore* store = d.store.get();

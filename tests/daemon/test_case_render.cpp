@@ -95,9 +95,6 @@ const Data& data() {
 }
 
 int port() { return g_d.port(); }
-Reply request(const std::string& method, const std::string& path, const std::string& body = "", const std::string& mime = "application/json") {
-    return g_d.get().request(method, path, body, mime);
-}
 Reply get(const std::string& path) { return g_d.get().get(path); }
 Reply post(const std::string& path, const json& body) { return g_d.get().post(path, body); }
 Reply post_raw(const std::string& path, const std::string& bytes) { return g_d.get().post_raw(path, bytes); }

@@ -238,7 +238,9 @@ std::int64_t phantom_case(const std::string& title, bool mask, bool photo) {
     const std::int64_t id = c.j.value("id", std::int64_t{0});
     const std::string base = "/api/cases/" + std::to_string(id);
     EXPECT_EQ(post_raw(base + "/volumes?name=t1.nii.gz&modality=T1", w.t1_bytes).status, 201);
-    if (mask) EXPECT_EQ(post_raw(base + "/volumes?name=mask.nii.gz&modality=mask", w.mask_bytes).status, 201);
+    if (mask) {
+        EXPECT_EQ(post_raw(base + "/volumes?name=mask.nii.gz&modality=mask", w.mask_bytes).status, 201);
+    }
     if (photo) {
         const Reply ph = post_raw(base + "/photos?name=photo.png&camera=" + url_encode(camera_json(w.pc.camera).dump()), w.photo_png);
         EXPECT_EQ(ph.status, 201) << ph.body;

@@ -245,9 +245,9 @@ TEST(Tags, BadInputStoresNothing) {
 
     struct Bad {
         std::string what, body;
-        int status;
-        std::string says;
-        std::string token;
+        int status = 0;
+        std::string says = {};
+        std::string token = {};
     };
     const auto one = [&](const json& t) { return json{{"tags", json::array({tag("S1", good), t})}}.dump(); };
     std::vector<Bad> bad = {
@@ -275,7 +275,9 @@ TEST(Tags, BadInputStoresNothing) {
     for (const Bad& b : bad) {
         const Reply r = request("POST", base + "/tags", b.body, b.token);
         EXPECT_EQ(r.status, b.status) << b.what << ": " << r.body;
-        if (!b.says.empty()) EXPECT_NE(r.body.find(b.says), std::string::npos) << b.what << ": " << r.body;
+        if (!b.says.empty()) {
+            EXPECT_NE(r.body.find(b.says), std::string::npos) << b.what << ": " << r.body;
+        }
         EXPECT_EQ(snapshot(id), before) << b.what << " changed what is stored";
     }
     EXPECT_EQ(post("/api/cases/99999/tags", {{"tags", json::array()}}).status, 404);

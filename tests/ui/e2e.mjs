@@ -24,9 +24,16 @@ const config = path.join(tmp, "config.json");
 // asks it to log in). Without one the reviewer logs in on the kiosk instead (a token from
 // loopback is used too), and the daemon listens on loopback only.
 const remoteIp = Object.values(os.networkInterfaces()).flat().find((a) => a && a.family === "IPv4" && !a.internal)?.address ?? null;
+// A "USB stick" (7.4): six slices of the DICOM series in tests/data and a corrupt NIfTI.
+const stick = path.join(tmp, "stick");
+fs.mkdirSync(path.join(stick, "patient", "MR_T1"), { recursive: true });
+const dicomSrc = new URL("../data/dicom_mr_sag", import.meta.url).pathname;
+for (const f of fs.readdirSync(dicomSrc).sort().slice(10, 16)) fs.copyFileSync(path.join(dicomSrc, f), path.join(stick, "patient", "MR_T1", f));
+fs.writeFileSync(path.join(stick, "bad_t1.nii.gz"), "not a NIfTI file, only text on a stick\n");
 fs.writeFileSync(config, JSON.stringify({
   http: { listen: `${remoteIp ? "0.0.0.0" : "127.0.0.1"}:0`, ui_dir: path.join(uiDir, "dist") },
   state_dir: path.join(tmp, "state"),
+  media: { removable_root: stick },
 }));
 
 let daemon, daemonB, browser, failed = false, registered = false;
@@ -87,11 +94,41 @@ try {
     expect(small.length === 0, `touch targets on ${screen} are at least 48 px (${small.join("; ")})`);
     targetsChecked.push(screen);
   };
+  // 7.30 at 1280x800: no passing notice over a control of the screen (its box intersects no
+  // button/input/link of <main>, and each control's centre is the control itself), and every
+  // status pill whole (scrollWidth <= clientWidth: no ellipsis).
+  const checkChrome = async (screen, p = page, minNotices = 0) => {
+    const r = await p.evaluate(() => {
+      const box = (e) => e.getBoundingClientRect();
+      const meets = (a, b) => a.left < b.right && b.left < a.right && a.top < b.bottom && b.top < a.bottom;
+      const notices = [...document.querySelectorAll('[data-testid="notice-banner"]')].filter((e) => e.offsetParent !== null);
+      const controls = [...document.querySelectorAll("main button, main a.btn, main input, main select")].filter((e) => e.offsetParent !== null);
+      const name = (e) => `${e.tagName.toLowerCase()}[${e.dataset.testid ?? e.textContent?.trim().slice(0, 20)}]`;
+      const covered = [];
+      for (const c of controls) {
+        const rc = box(c);
+        if (rc.width === 0 || rc.height === 0) continue;
+        for (const n of notices) if (meets(box(n), rc)) covered.push(`${name(c)} under "${n.textContent.slice(0, 30)}"`);
+        const cx = rc.left + rc.width / 2, cy = rc.top + rc.height / 2;
+        if (cx < 0 || cy < 0 || cx >= innerWidth || cy >= innerHeight) continue;
+        const top = document.elementFromPoint(cx, cy);
+        if (top && !c.contains(top) && !top.contains(c) && top.closest('[data-testid="notices"]')) covered.push(`${name(c)} hidden by a notice`);
+      }
+      const cut = [...document.querySelectorAll(".statusbar .pill")].filter((e) => e.scrollWidth > e.clientWidth)
+        .map((e) => `${e.dataset.testid}: "${e.textContent}" ${e.scrollWidth}>${e.clientWidth}`);
+      return { w: innerWidth, h: innerHeight, n: notices.length, controls: controls.length, covered, cut,
+        pills: [...document.querySelectorAll(".statusbar .pill")].map((e) => e.textContent) };
+    });
+    expect(r.n >= minNotices, `${screen}: ${minNotices} notice(s) expected on screen, ${r.n} seen`);
+    expect(r.covered.length === 0, `${screen} at ${r.w}x${r.h}: no control under a notice (${r.covered.join("; ")})`);
+    expect(r.cut.length === 0, `${screen} at ${r.w}x${r.h}: status pills whole (${r.cut.join("; ")})`);
+    step(`chrome on ${screen} at ${r.w}x${r.h}: ${r.n} notice(s) over none of ${r.controls} controls; pills whole: ${r.pills.join(" | ")}`);
+  };
 
   // Cases screen, status bar live from the push channel.
   await page.goto(`${base}/`);
   await page.getByTestId("sb-link").filter({ hasText: "Live" }).waitFor({ timeout: 15000 });
-  await page.getByTestId("sb-tracker").filter({ hasText: /streaming \d+ Hz/ }).waitFor({ timeout: 20000 });
+  await page.getByTestId("sb-tracker").filter({ hasText: /Tracker \d+ Hz/ }).waitFor({ timeout: 20000 });
   await page.waitForFunction(() => Number(document.querySelector('[data-testid="sb-tools"]')?.dataset.seq) > 0, null, { timeout: 15000 });
   const seq1 = Number(await page.getByTestId("sb-tools").getAttribute("data-seq"));
   await page.waitForTimeout(600);
@@ -252,7 +289,7 @@ try {
   await checkTargets("jobs");
   await running.getByTestId("cancel-job").tap();
   await page.locator('[data-testid="job-card"][data-state="cancelled"]').first().waitFor({ timeout: 30000 });
-  await page.getByTestId("sb-jobs").filter({ hasText: "0 running" }).waitFor({ timeout: 15000 });
+  await page.getByTestId("sb-jobs").filter({ hasText: "Jobs idle" }).waitFor({ timeout: 15000 });
   await shot("06-jobs-cancelled");
   step("register job started and cancelled");
 
@@ -280,10 +317,29 @@ try {
   await page.getByTestId("upload-volume").tap();
   const badVol = page.getByTestId("error-banner").filter({ hasText: "t1.nii.gz" });
   await badVol.waitFor({ timeout: 20000 });
+  await badVol.filter({ hasText: "not a readable volume" }).filter({ hasText: "or a DICOM folder, then add it again." }).waitFor({ timeout: 5000 }); // 7.44: the next step
   step(`bad volume: ${await badVol.locator(".text").textContent()}`);
   await shot("09-upload-refused");
   await badPhoto.getByRole("button").tap();
   await badVol.getByRole("button").tap();
+  // From the USB stick (7.4): the listing, a corrupt file refused naming it, the DICOM series imported.
+  await page.getByTestId("media-look").tap();
+  await page.getByTestId("media-line").filter({ hasText: "2 volumes on the stick" }).waitFor({ timeout: 10000 });
+  await page.getByTestId("media-volume").selectOption("bad_t1.nii.gz");
+  await page.getByTestId("media-import").tap();
+  const badStick = page.getByTestId("error-banner").filter({ hasText: "media bad_t1.nii.gz: not a readable volume" });
+  await badStick.waitFor({ timeout: 20000 });
+  await badStick.filter({ hasText: "then add it again." }).waitFor({ timeout: 5000 });
+  step(`USB stick, corrupt file: ${await badStick.locator(".text").textContent()}`);
+  await badStick.getByRole("button").tap();
+  await page.getByTestId("upload-volume-modality").selectOption("T1");
+  await page.getByTestId("media-volume").selectOption("patient/MR_T1");
+  await page.getByTestId("media-volume").scrollIntoViewIfNeeded();
+  await shot("09b-usb-stick");
+  await page.getByTestId("media-import").tap();
+  await page.getByTestId("notice-banner").filter({ hasText: "Imported patient/MR_T1 from the USB stick as T1" }).waitFor({ timeout: 30000 * SLOW });
+  await page.getByTestId("case-volumes").filter({ hasText: "MR_T1.nii.gz" }).waitFor({ timeout: 20000 });
+  step("USB stick: DICOM series patient/MR_T1 imported as T1 (MR_T1.nii.gz)");
   const phantomDir = path.join(tmp, "state", "cases", "phantom", "case_0000");
   await page.getByTestId("upload-photo-file").setInputFiles(path.join(phantomDir, JSON.parse(fs.readFileSync(path.join(phantomDir, "case.json"), "utf8")).photo));
   await page.getByTestId("upload-photo").tap();
@@ -359,11 +415,32 @@ try {
     const p = new DOMPoint(u, v).matrixTransform(svg.getScreenCTM());
     return { x: Math.round(p.x), y: Math.round(p.y) };
   }, [u, v]);
+  // The initial alignment of the stored pairs, shown at once (7.19): the RMS line, an error per
+  // row and a projected cross per pair, the RMS the daemon's stored-set answer gives.
+  const alignmentNow = () => page.evaluate(() => {
+    const a = document.querySelector('[data-testid="alignment"]');
+    return { state: a?.dataset.state, rms: Number(a?.dataset.rmsPx), text: a?.textContent,
+      crosses: document.querySelectorAll('[data-testid="lm-projected"]').length,
+      errors: [...document.querySelectorAll('[data-testid="landmark-error"]')].map((e) => e.textContent) };
+  });
+  const storedRms = () => page.evaluate(async (id) => (await (await fetch(`/api/cases/${id}/landmarks/initial-pose`)).json()).rms_px, importedId);
+  await page.waitForFunction(() => document.querySelector('[data-testid="alignment"]')?.dataset.state === "ok", null, { timeout: 10000 });
+  const al0 = await alignmentNow();
+  const nLm0 = Number(await marks.getAttribute("data-landmarks"));
+  expect(al0.crosses === nLm0 && al0.errors.length === nLm0 && al0.errors.every((e) => /^\d+\.\d px$/.test(e)), `a projected cross and an error per pair (${JSON.stringify(al0)})`);
+  expect(Math.abs(al0.rms - await storedRms()) < 1e-3, `the shown RMS ${al0.rms} is the daemon's for the stored pairs`);
+  await shot("11a-photo-alignment");
   const lm0 = await page.evaluate(() => { const c = document.querySelector('[data-testid="photo-marks"] circle.lm'); return [Number(c.getAttribute("cx")), Number(c.getAttribute("cy"))]; });
   const s0 = await toScreen(lm0[0], lm0[1]);
   await touchDrag(Array.from({ length: 6 }, (_, i) => ({ x: s0.x + 3 * i, y: s0.y + 2 * i })));
+  // The edit, not saved yet: a new alignment at once, with a larger error.
+  await page.waitForFunction((r0) => { const a = document.querySelector('[data-testid="alignment"]'); return a?.dataset.state === "ok" && Math.abs(Number(a.dataset.rmsPx) - r0) > 1e-3; }, al0.rms, { timeout: 10000 });
+  const al1 = await alignmentNow();
+  expect(al1.rms > al0.rms + 0.5, `moving a twin by ~18 screen px raised the RMS (${al0.rms} -> ${al1.rms} px)`);
   await page.getByTestId("save-landmarks").tap();
   await page.getByTestId("notice-banner").filter({ hasText: "Landmarks saved (revision 2)" }).waitFor({ timeout: 10000 });
+  expect(Math.abs(al1.rms - await storedRms()) < 1e-3, "after Save the stored pairs give the RMS shown for the edit");
+  step(`initial alignment: ${al0.text} -> after moving a twin ${al1.rms.toFixed(2)} px (saved: same from the stored set)`);
   const lm1 = await page.evaluate(() => { const c = document.querySelector('[data-testid="photo-marks"] circle.lm'); return [Number(c.getAttribute("cx")), Number(c.getAttribute("cy"))]; });
   expect(Math.hypot(lm1[0] - lm0[0], lm1[1] - lm0[1]) > 5, `the dragged landmark moved on the photo (${lm0} -> ${lm1})`);
   await page.getByTestId("mode-roi").tap();
@@ -378,6 +455,7 @@ try {
   await page.getByTestId("notice-banner").filter({ hasText: "ROI saved (revision 2)" }).waitFor({ timeout: 10000 });
   await shot("11-photo-marks");
   await checkTargets("photo & marks");
+  await checkChrome("photo & marks (ROI)", page, 1);
   // Bad input: an ROI of two points is refused by the daemon, in its words; nothing stored.
   await page.getByTestId("roi-clear").tap();
   const c1 = await toScreen(200, 120), c2 = await toScreen(450, 120);
@@ -390,8 +468,19 @@ try {
   await badRoi.waitFor({ timeout: 10000 });
   step(`landmark moved and ROI point added (revision 2 each); 2-point ROI refused: ${await badRoi.locator(".text").textContent()}`);
   await badRoi.getByRole("button").tap();
-
+  // 7.47: the refused 2-point ROI is unsaved: leaving asks first (Stay keeps it), then leaves.
   await page.getByTestId("case-tab-contents").tap();
+  const leaveAsk = page.getByTestId("leave-ask").filter({ hasText: "Unsaved ROI on Photo & marks" });
+  await leaveAsk.waitFor({ timeout: 5000 });
+  expect(/\/photo$/.test(page.url()), `the unsaved ROI keeps the photo screen (${page.url()})`);
+  await page.getByTestId("leave-stay").tap();
+  await leaveAsk.waitFor({ state: "hidden", timeout: 5000 });
+  expect(await page.evaluate(() => Number(document.querySelector('[data-testid="photo-marks"]').dataset.roiPoints)) === 2, "Stay keeps the 2 unsaved ROI points");
+  await page.getByTestId("case-tab-contents").tap();
+  await leaveAsk.waitFor({ timeout: 5000 });
+  step(`leaving with unsaved marks asked: ${await leaveAsk.locator(".text").textContent()}`);
+  await page.getByTestId("leave-anyway").tap();
+  await page.waitForURL(/\/contents$/, { timeout: 5000 });
   await page.getByTestId("case-holdings").filter({ hasText: `ROI with ${nRoi0 + 1} control points (revision 2)` }).waitFor({ timeout: 20000 });
   await page.getByTestId("case-register").tap();
   await page.waitForURL(/#\/jobs$/, { timeout: 10000 });
@@ -420,6 +509,7 @@ try {
     step(`fused view: ${await page.getByTestId("fused-info").textContent()}`);
     await shot("12-fused");
     await checkTargets("fused");
+    await checkChrome("fused");
     // Planning (the plan job, from Contents), then the photo on the model: the textured
     // surface from the registered camera, turned by a drag, and back with Camera view.
     // An fMRI map first, so that the plan has a layer to toggle (e2e_fused_modalities.mjs).
@@ -487,6 +577,9 @@ try {
   const tw = await toScreen(150, 100);
   await page.touchscreen.tap(tw.x, tw.y);
   await page.waitForFunction(() => Number(document.querySelector('[data-testid="photo-marks"]').dataset.landmarks) === 5, null, { timeout: 5000 });
+  await page.waitForFunction(() => document.querySelector('[data-testid="alignment"]')?.dataset.state === "ok" &&
+                                   document.querySelectorAll('[data-testid="lm-projected"]').length === 5, null, { timeout: 10000 });
+  step(`with the fifth pair: ${(await alignmentNow()).text}`);
   await page.getByTestId("save-landmarks").tap();
   await page.getByTestId("notice-banner").filter({ hasText: "Landmarks saved (revision 3)" }).waitFor({ timeout: 10000 });
   step("new landmark pair: model point picked by touch, twin tapped on the photo, saved (revision 3, 5 pairs)");
@@ -522,6 +615,21 @@ try {
   await rp.getByTestId("case-row").first().waitFor({ timeout: 15000 });
   await rp.getByTestId("read-only-note").waitFor({ timeout: 5000 });
   expect(await rp.getByTestId("create-case").count() === 0 && await rp.getByTestId("import-case").count() === 0, "a reviewer gets no create or import");
+  // The archive's thumbnails (7.2), as the reviewer sees them: each row's picture made by the
+  // daemon, or the placeholder saying there is none.
+  await rp.waitForFunction(() => [...document.querySelectorAll('[data-testid="case-thumb"]')].every((t) => t.dataset.source !== "loading" &&
+                                   (!t.querySelector("img") || t.querySelector("img").naturalWidth > 0)), null, { timeout: 60000 });
+  const thumbRows = await rp.evaluate(() => [...document.querySelectorAll('[data-testid="case-row"]')].map((r) => ({
+    id: Number(r.getAttribute("href").split("/")[2]), source: r.querySelector('[data-testid="case-thumb"]').dataset.source,
+    width: r.querySelector('[data-testid="case-thumb"] img')?.naturalWidth ?? 0, text: r.querySelector('[data-testid="case-thumb"]').textContent, title: r.querySelector('[data-testid="case-thumb"]').title })));
+  const importedResults = await page.evaluate(async (id) => (await (await fetch(`/api/cases/${id}/results`)).json()).results.map((r) => r.kind), importedId);
+  const importedThumb = thumbRows.find((r) => r.id === importedId);
+  const wantFused = registered && importedResults.includes("plan_brain_surface");
+  expect(importedThumb?.source === (wantFused ? "fused" : "photo") && importedThumb.width === 192,
+    `the imported case's thumbnail is its ${wantFused ? "fused view" : "photo"} (${JSON.stringify(importedThumb)})`);
+  expect(thumbRows.some((r) => r.source === "none" && r.text === "No photo or fused view yet"), `a case without pictures says so (${JSON.stringify(thumbRows)})`);
+  expect(thumbRows.some((r) => r.source === "photo" && r.width === 192), "a case with only a photo shows it");
+  step(`thumbnails: ${thumbRows.map((r) => `case ${r.id} ${r.source}`).join(", ")}`);
   await shot("13-review-cases", rp);
   await rp.evaluate((id) => { location.hash = `#/case/${id}/contents`; }, importedId);
   await rp.getByTestId("case-registrations").filter({ hasText: registered ? "succeeded" : "cancelled" }).waitFor({ timeout: 20000 });
@@ -530,6 +638,7 @@ try {
   await rp.getByTestId("case-tab-photo").tap();
   await rp.waitForFunction(() => Number(document.querySelector('[data-testid="photo-marks"]')?.dataset.landmarks) >= 4, null, { timeout: 20000 });
   expect(await rp.getByTestId("save-landmarks").count() === 0 && await rp.getByTestId("save-roi").count() === 0, "a reviewer cannot save marks");
+  await rp.waitForFunction(() => document.querySelector('[data-testid="alignment"]')?.dataset.state === "ok", null, { timeout: 10000 });
   await rp.getByTestId("case-tab-fused").tap();
   if (registered) await rp.waitForFunction(() => document.querySelector('[data-testid="fused-model"]')?.dataset.full === "true", null, { timeout: 30000 });
   else await rp.getByTestId("no-result").waitFor({ timeout: 20000 });
@@ -592,7 +701,11 @@ try {
   await rerr.filter({ hasText: "could not be loaded" }).waitFor({ timeout: 20000 });
   await bp.getByTestId("error-banner").filter({ hasText: "could not be loaded" }).waitFor({ timeout: 5000 });
   await bp.getByTestId("sb-renderer").filter({ hasText: "failed" }).waitFor({ timeout: 5000 });
-  step(`failed render shown: ${await rerr.locator(".text").textContent()}`);
+  // 7.44: the daemon's own MRI is bad: name the file and data.t1, no "when the daemon is ready".
+  const rerrText = await rerr.locator(".text").textContent();
+  expect(/not-an-mri\.nii\.gz/.test(rerrText) && rerrText.includes("`data.t1`") && rerrText.includes("restart cortexfused") && !rerrText.includes("when the daemon is ready"),
+    `the failed render names the file and the fix (${rerrText})`);
+  step(`failed render shown: ${rerrText}`);
   await shot("16-render-failed", bp);
   await bp.getByTestId("render-retry").tap(); // the retry asks again and is refused again, still in words
   await rerr.filter({ hasText: "could not be loaded" }).waitFor({ timeout: 10000 });

@@ -107,6 +107,10 @@ export async function planCheckE2E({ page, step, expect, shot, checkTargets, cas
   await page.getByTestId("plan-stage").filter({ hasText: "succeeded" }).waitFor({ timeout: 10000 });
   const w = await page.evaluate(() => document.querySelector('[data-testid="plan-progress"] .bar').style.width);
   expect(w === "100%", `the plan's progress bar is full (${w})`);
+  // The brain surface (7.6b): cut by the same slices, drawn over the mask, inside the mask.
+  await page.waitForFunction(() => Number(document.querySelector('[data-testid="plan-check"]')?.dataset.surfaceSegments) > 100, null, { timeout: 30000 });
+  const inMask = Number(await page.getByTestId("plan-check").getAttribute("data-surface-in-mask"));
+  expect(inMask >= 0.9, `the plan's surface outline lies inside its brain mask (${(100 * inMask).toFixed(1)} % within 2 voxels)`);
   step(`Preoperative: ${await page.getByTestId("plan-check-text").textContent()}`);
   await shot("plan-01-check");
   await checkTargets("preoperative");

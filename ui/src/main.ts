@@ -3,6 +3,9 @@
 import "./style.css";
 import { ApiError, UserMessage, apiBlob, apiJson, apiPostBlob, apiRender, apiUpload, auth, plainMessage, type RenderedImage } from "./api";
 import { cardinalPath, clampPx, defaultCamera, imageKind, insertRoiPoint, nearest, projectPoint, type Px } from "./photo_marks";
+import { mediaChoices, mediaImport, mediaLine, type MediaAnswer } from "./media";
+import { ThumbnailLoader, thumbCaption } from "./thumbnails";
+import { AlignmentFetcher, alignmentHeadline, highErrorPx, pairErrorText } from "./initial_alignment";
 import { PushChannel, type PushState } from "./push";
 import { fitFocalPx, RenderScheduler, renderSizes } from "./render_scheduler";
 import { drawNmiPlot, type NmiPoint } from "./nmiplot";
@@ -21,6 +24,9 @@ import { auditRows, fmtBytes, fmtTime, holdings, patientLine, registrationRows, 
 import { trackerScreen } from "./tracker_screen";
 import { FusedModalityPanel, fusedLayers, fusedRequest, layersNeedGl } from "./fused_modalities";
 import { caseRenderFields, defaultLayers, histogramBars, histogramPath, layerHistogramPath, ModalityTabs, newestT1, planModalities, type ModalityLayer, type VolumeHistogram } from "./case_render";
+import { renderFailureNextStep, volumeRefusalNextStep } from "./next_step";
+import { LeaveGuard, unsavedMarksText } from "./leave_guard";
+import { jobsPill, rendererPill, toolsPill, trackerPill } from "./status_pills";
 
 // ---- shared state ------------------------------------------------------------------------
 interface CaseSummary { id: number; uid: string; title: string; state: string; created_utc: string; updated_utc: string }
@@ -39,9 +45,10 @@ const statusBar = h("header", { class: "statusbar", "data-testid": "statusbar" }
 const banners = h("div", { class: "banners", "aria-live": "polite" });
 const nav = h("nav", { class: "tabs" });
 const main = h("main", { class: "screen" });
-// Passing notices float over the bottom right (they must not push the picture down).
-const toasts = h("div", { class: "toasts", "aria-live": "polite" });
-app.append(statusBar, banners, nav, main, toasts);
+// Passing notices sit in the tab row, right of the tabs (issue 7, 7.30): over no control of a
+// screen (at 1280x800 the bottom right was the side panel's Save/Clear), not pushing the picture down.
+const toasts = h("div", { class: "toasts", "aria-live": "polite", "data-testid": "notices" });
+app.append(statusBar, banners, nav, main);
 
 // ---- error banners -----------------------------------------------------------------------
 function showError(e: unknown): void {
@@ -58,14 +65,19 @@ function sentence(t: string): string {
   return /[.!?…)]$/.test(t.trim()) ? t.trim() : `${t.trim()}.`;
 }
 
-/** A passing notice (not an error): shown for 10 s, or until dismissed. */
+/** How many passing notices are shown side by side at most, and for how long. */
+const NOTICES_MAX = 2;
+const NOTICE_LIFE_MS = 6000;
+
+/** A passing notice (not an error): shown for NOTICE_LIFE_MS, or until dismissed; at most
+ *  NOTICES_MAX (the oldest goes first). */
 function showNotice(text: string): void {
   const banner = h("div", { class: "banner info", role: "status", "data-testid": "notice-banner" },
     h("span", { class: "text" }, text),
     h("button", { class: "btn small", onclick: () => banner.remove() }, "Dismiss"));
   toasts.append(banner);
-  while (toasts.children.length > 3) toasts.firstElementChild?.remove();
-  setTimeout(() => banner.remove(), 10000);
+  while (toasts.children.length > NOTICES_MAX) toasts.firstElementChild?.remove();
+  setTimeout(() => banner.remove(), NOTICE_LIFE_MS);
 }
 
 // The live link: a standing line while it is lost (not dismissable: it goes when the link is back).
@@ -177,17 +189,16 @@ function applyStatus(s: StatusSummary): void {
   trackerBanner.hidden = tv.banner === null;
   trackerBanner.querySelector(".text")!.textContent = tv.banner ?? "";
   if (tv.notice) showNotice(tv.notice);
-  const hz = typeof t.frame_rate_hz === "number" ? ` ${t.frame_rate_hz.toFixed(0)} Hz` : "";
-  setPill(sb.tracker, `Tracker: ${t.state ?? "unknown"}${hz}`, t.state === "streaming" ? "ok" : t.state ? "warn" : "bad");
+  setPill(sb.tracker, trackerPill(t.state, t.frame_rate_hz), t.state === "streaming" ? "ok" : t.state ? "warn" : "bad");
   const r = s.renderer ?? {};
-  setPill(sb.renderer, r.state === "failed" ? "Renderer: failed (no volume)" : `Renderer: ${r.backend ?? "?"} (${r.state ?? "unknown"})`, r.state === "ready" ? "ok" : r.state === "failed" ? "bad" : "warn");
+  setPill(sb.renderer, rendererPill(r.state, r.backend), r.state === "ready" ? "ok" : r.state === "failed" ? "bad" : "warn");
   const raw = s.jobs ?? {};
   const kinds = ("kinds" in raw && raw.kinds ? raw.kinds : raw) as Record<string, { queued?: number; running?: number | null }>;
   let running = 0, queued = 0;
   for (const k of Object.values(kinds)) {
     if (k && typeof k === "object") { if (k.running !== null && k.running !== undefined) running++; queued += k.queued ?? 0; }
   }
-  setPill(sb.jobs, `Jobs: ${running} running, ${queued} queued`, "ok");
+  setPill(sb.jobs, jobsPill(running, queued), "ok");
 }
 
 interface TrackerFrame { seq: number; tools?: { name: string; status: string }[] }
@@ -195,7 +206,7 @@ function applyFrame(f: TrackerFrame): void {
   const tools = f.tools ?? [];
   const seen = tools.filter((t) => t.status === "ok").map((t) => t.name);
   const missing = tools.filter((t) => t.status !== "ok").map((t) => t.name);
-  setPill(sb.tools, `Tools: ${seen.join(", ") || "none"} seen${missing.length ? `; ${missing.join(", ")} missing` : ""}`,
+  setPill(sb.tools, toolsPill(seen, missing),
     missing.length ? "warn" : "ok");
   sb.tools.dataset.seq = String(f.seq);
 }
@@ -215,7 +226,7 @@ async function pollStatus(): Promise<void> {
     const m = s.modules as StatusSummary & Record<string, unknown>;
     applyStatus({ tracker: m.tracker as StatusSummary["tracker"], renderer: m.renderer as StatusSummary["renderer"], jobs: m.jobs as StatusSummary["jobs"] });
   } catch (e) {
-    setPill(sb.tracker, "Tracker: unknown", "bad");
+    setPill(sb.tracker, trackerPill(undefined, undefined), "bad");
     showError(e);
   }
 }
@@ -274,21 +285,39 @@ setInterval(() => {
 // ---- router ------------------------------------------------------------------------------
 const tabs: [string, string][] = [["#/cases", "Cases"], ["#/jobs", "Jobs"]];
 let leaveScreen: (() => void) | null = null;
+const leaveGuard = new LeaveGuard();
+const leaveAsk = h("div", { class: "banner warn", role: "alert", "data-testid": "leave-ask", hidden: true });
+banners.append(leaveAsk);
+
+/** A hash change: routed, unless the shown screen has unsaved edits; then the hash is put back
+ *  and the person is asked (7.47). */
+function onHashChange(): void {
+  const d = leaveGuard.decide(location.hash || "#/cases");
+  if (d.kind === "go") { route(); return; }
+  history.replaceState(null, "", d.back);
+  leaveAsk.replaceChildren(h("span", { class: "text" }, d.reason),
+    h("button", { class: "btn small", "data-testid": "leave-stay", onclick: () => { leaveAsk.hidden = true; } }, "Stay"),
+    h("button", { class: "btn small", "data-testid": "leave-anyway", onclick: () => { leaveAsk.hidden = true; leaveGuard.allowOnce(d.to); location.hash = d.to; } }, "Leave without saving"));
+  leaveAsk.hidden = false;
+}
+
 function route(): void {
+  leaveGuard.arrived(location.hash || "#/cases");
+  leaveAsk.hidden = true;
   leaveScreen?.();
   leaveScreen = null;
   jobsListener = null;
   main.replaceChildren();
-  if (needLogin) { nav.replaceChildren(); loginScreen(); return; }
+  if (needLogin) { nav.replaceChildren(toasts); loginScreen(); return; }
   const hash = location.hash || "#/cases";
   nav.replaceChildren(...tabs.map(([href, label]) =>
-    h("a", { href, class: `tab${hash.startsWith(href) || (href === "#/cases" && hash.startsWith("#/case/")) ? " active" : ""}` }, label)));
+    h("a", { href, class: `tab${hash.startsWith(href) || (href === "#/cases" && hash.startsWith("#/case/")) ? " active" : ""}` }, label)), toasts);
   const m = /^#\/case\/(\d+)(?:\/([a-z]+))?$/.exec(hash);
   if (m) caseScreen(Number(m[1]), m[2] ?? "view");
   else if (hash.startsWith("#/jobs")) jobsScreen();
   else casesScreen();
 }
-window.addEventListener("hashchange", route);
+window.addEventListener("hashchange", onHashChange);
 
 // ---- Login -------------------------------------------------------------------------------
 function loginScreen(): void {
@@ -333,6 +362,20 @@ function loginScreen(): void {
 }
 
 // ---- Cases -------------------------------------------------------------------------------
+// The archive's thumbnails (src/thumbnails.ts): kept for the tab per case and its last change.
+const thumbs = new ThumbnailLoader();
+/** A row's thumbnail: the picture (fused view or photo) or a placeholder saying there is none. */
+function caseThumb(c: CaseSummary): HTMLElement {
+  const box = h("span", { class: "thumb", "data-testid": "case-thumb", "data-source": "loading" }, h("span", { class: "thumb-text" }, "…"));
+  thumbs.get(c.id, c.updated_utc).then((t) => {
+    box.dataset.source = t.source;
+    const caption = thumbCaption(t);
+    box.title = t.note ? `${caption}: ${t.note}` : caption;
+    box.replaceChildren(t.url ? h("img", { src: t.url, alt: `${caption} of ${c.title || "the case"}`, draggable: "false" }) : h("span", { class: "thumb-text" }, caption));
+  });
+  return box;
+}
+
 function casesScreen(): void {
   const search = h("input", { type: "search", placeholder: "Search title, MRN, patient", class: "field grow", "data-testid": "case-search" });
   const list = h("div", { class: "list", "data-testid": "case-list" });
@@ -344,6 +387,7 @@ function casesScreen(): void {
       const r = await apiJson<{ cases: CaseSummary[] }>("GET", `/api/cases?limit=200&sort=${encodeURIComponent(sort.value)}${q ? `&text=${encodeURIComponent(q)}` : ""}`);
       list.replaceChildren(...(r.cases.length ? r.cases.map((c) =>
         h("a", { class: "row", href: `#/case/${c.id}`, "data-testid": "case-row" },
+          caseThumb(c),
           h("span", { class: "row-title" }, c.title || "(untitled)"),
           h("span", { class: "badge" }, c.state.replace(/_/g, " ")),
           h("span", { class: "muted" }, fmtTime(c.updated_utc)))) :
@@ -584,7 +628,9 @@ function uploadForms(id: number): HTMLElement {
     const f = volFile.files?.[0];
     if (!f) { showError(new UserMessage("Choose the volume file first (NIfTI .nii/.nii.gz, NRRD or MetaImage .mha).")); return; }
     busy(volBtn, `Uploading ${f.name} (${fmtBytes(f.size)})`, async () => {
-      await apiUpload(`/api/cases/${id}/volumes?name=${encodeURIComponent(f.name)}&modality=${encodeURIComponent(volMod.value)}`, f);
+      try {
+        await apiUpload(`/api/cases/${id}/volumes?name=${encodeURIComponent(f.name)}&modality=${encodeURIComponent(volMod.value)}`, f);
+      } catch (e) { throw e instanceof ApiError ? new UserMessage(volumeRefusalNextStep(e.message)) : e; }
     });
   });
   photoBtn.addEventListener("click", () => {
@@ -613,8 +659,33 @@ function uploadForms(id: number): HTMLElement {
       await apiUpload(`/api/cases/${id}/photos?name=${encodeURIComponent(name)}&camera=${encodeURIComponent(JSON.stringify(cam))}`, blob);
     });
   });
+  // From a USB stick (src/media.ts): the daemon lists the volume files and DICOM folders under
+  // its media.removable_root; the chosen one is imported with the modality chosen above.
+  const stickLook = h("button", { class: "btn", type: "button", "data-testid": "media-look" }, "Look on USB stick");
+  const stickPick = h("select", { class: "field grow", "data-testid": "media-volume", hidden: true });
+  const stickImport = h("button", { class: "btn", type: "button", "data-testid": "media-import", hidden: true }, "Import from stick");
+  const stickLine = h("p", { class: "muted", "data-testid": "media-line" }, "");
+  stickLook.addEventListener("click", async () => {
+    stickLook.disabled = true;
+    try {
+      const a = await apiJson<MediaAnswer>("GET", "/api/media/volumes");
+      stickLine.textContent = mediaLine(a);
+      stickPick.replaceChildren(...mediaChoices(a).map((c) => h("option", { value: c.value }, c.label)));
+      stickPick.hidden = stickImport.hidden = !a.volumes.length;
+    } catch (e) { showError(e); } finally { stickLook.disabled = false; }
+  });
+  stickImport.addEventListener("click", () => {
+    const chosen = stickPick.value;
+    if (!chosen) { showError(new UserMessage("Choose a volume on the stick first (Look on USB stick).")); return; }
+    busy(stickImport, `Importing ${chosen} from the stick as ${volMod.value}`, async () => {
+      const r = mediaImport(id, chosen, volMod.value);
+      try { await apiJson("POST", r.path, r.body); } catch (e) { throw e instanceof ApiError ? new UserMessage(volumeRefusalNextStep(e.message)) : e; }
+      showNotice(`Imported ${chosen} from the USB stick as ${volMod.value}.`);
+    });
+  });
   return h("div", { class: "uploads", "data-write": "" },
     h("div", { class: "toolbar" }, volFile, volMod, volBtn),
+    h("div", { class: "toolbar" }, stickLook, stickPick, stickImport), stickLine,
     h("div", { class: "toolbar" }, photoFile, h("label", { class: "muted" }, "focal px"), focal, photoBtn),
     h("div", { class: "toolbar" }, captureBtn), status);
 }
@@ -665,14 +736,33 @@ function casePhoto(id: number, body: HTMLElement, alive: Alive, got: (c: CaseRec
     let mode: "landmarks" | "roi" = "landmarks";
     let sel = -1;
     let dirtyL = false, dirtyR = false;
+    if (alive()) leaveGuard.set(() => (alive() ? unsavedMarksText(dirtyL, dirtyR) : null));
     const info = h("p", { class: "muted", "data-testid": "photo-info" });
     const list = h("div", { class: "list compact", "data-testid": "landmark-list" });
+    // The initial alignment of the pairs as they are on the screen (saved or not), asked after
+    // each change (src/initial_alignment.ts): the RMS here, each pair's error in its row, the
+    // model points projected with that pose on the photo.
+    const alignLine = h("p", { class: "align-line", "data-testid": "alignment", role: "status" });
+    let errSpans: HTMLElement[] = [];
+    const paintAlignment = () => {
+      const a = aligner.alignment;
+      alignLine.textContent = alignmentHeadline(a, aligner.pairCount, aligner.error);
+      alignLine.dataset.state = a ? "ok" : aligner.error ? "refused" : aligner.pairCount < 4 ? "too-few" : "computing";
+      if (a) alignLine.dataset.rmsPx = a.rms_px.toFixed(3); else delete alignLine.dataset.rmsPx;
+      errSpans.forEach((sp, i) => {
+        sp.textContent = pairErrorText(a, i);
+        const e = a?.pairs[i]?.error_px;
+        sp.classList.toggle("high", e !== null && e !== undefined && e > highErrorPx(W));
+      });
+    };
+    const aligner = new AlignmentFetcher(id, () => { if (alive()) { paintAlignment(); draw(); } });
+    const realign = () => { void aligner.update(lms, photo.id); };
     const saveL = h("button", { class: "btn primary", "data-testid": "save-landmarks", "data-write": "" }, "Save landmarks");
     const saveR = h("button", { class: "btn primary", "data-testid": "save-roi", "data-write": "" }, "Save ROI");
     const delR = h("button", { class: "btn", "data-testid": "roi-delete", "data-write": "" }, "Delete point");
     const clearR = h("button", { class: "btn", "data-testid": "roi-clear", "data-write": "" }, "Clear ROI");
     const modeBox = h("div", { class: "choices" });
-    const lmPanel = h("div", {}, h("h2", {}, "Landmark pairs"), list, writer ? h("div", { class: "toolbar" }, saveL) : "",
+    const lmPanel = h("div", {}, h("h2", {}, "Landmark pairs"), alignLine, list, writer ? h("div", { class: "toolbar" }, saveL) : "",
       h("p", { class: "muted" }, writer ? "Drag a numbered mark to move the photo twin of that landmark; its point on the model stays. A new pair: Pick landmark in the 3D view, tap the model, then tap its twin here." : "Read-only."));
     const roiPanel = h("div", {}, h("h2", {}, "ROI (closed spline)"),
       writer ? h("div", { class: "choices" }, delR, clearR, saveR) : "",
@@ -696,6 +786,15 @@ function casePhoto(id: number, body: HTMLElement, alive: Alive, got: (c: CaseRec
         el("path", { d: cardinalPath(roi, tension), class: `roi-path${mode === "roi" ? " active" : ""}`, "stroke-width": 3 / k, "data-testid": "roi-path" });
         if (mode === "roi") roi.forEach((p, i) => el("circle", { cx: p[0], cy: p[1], r: i === sel ? r * 1.2 : r * 0.8, class: `roi-point${i === sel ? " sel" : ""}`, "stroke-width": 2 / k }));
       }
+      const al = mode === "landmarks" ? aligner.alignment : null;
+      if (al && al.pairs.length === lms.length) al.pairs.forEach((p, i) => {
+        // The model point projected with the initial pose: a cross, joined to its twin.
+        if (!p.projected_pixel) return;
+        const [u, v] = p.projected_pixel, c = 8 / k;
+        const cls = `lm-proj${(p.error_px ?? 0) > highErrorPx(W) ? " high" : ""}`;
+        el("line", { x1: lms[i].pixel[0], y1: lms[i].pixel[1], x2: u, y2: v, class: cls, "stroke-width": 1.5 / k });
+        el("path", { d: `M${u - c},${v - c} L${u + c},${v + c} M${u - c},${v + c} L${u + c},${v - c}`, class: cls, "stroke-width": 2.5 / k, "data-testid": "lm-projected" });
+      });
       lms.forEach((l, i) => {
         el("circle", { cx: l.pixel[0], cy: l.pixel[1], r: mode === "landmarks" && i === sel ? r * 1.2 : r, class: `lm${mode === "landmarks" && i === sel ? " sel" : ""}`, "stroke-width": 2 / k });
         const t = el("text", { x: l.pixel[0], y: l.pixel[1] + 5 / k, "font-size": 14 / k, class: "lm-label" });
@@ -713,15 +812,19 @@ function casePhoto(id: number, body: HTMLElement, alive: Alive, got: (c: CaseRec
         (waiting ? ` · ${waiting} model point${waiting > 1 ? "s" : ""} picked in the 3D view: tap the twin on the photo (Landmarks)` : "");
     };
     const drawList = () => {
+      errSpans = [];
       list.replaceChildren(...lms.map((l, i) => {
         const name = h("input", { type: "text", class: "field grow", value: l.name, "aria-label": `landmark ${i + 1} name`, "data-testid": "landmark-name" });
         name.readOnly = !writer;
         name.addEventListener("input", () => { l.name = name.value; dirtyL = true; draw(); });
         const del = h("button", { class: "btn", "data-write": "", "data-testid": "landmark-delete" }, "Delete");
-        del.addEventListener("click", () => { lms = lms.filter((_, k) => k !== i); sel = -1; dirtyL = true; drawList(); draw(); });
+        del.addEventListener("click", () => { lms = lms.filter((_, k) => k !== i); sel = -1; dirtyL = true; drawList(); draw(); realign(); });
+        errSpans[i] = h("span", { class: "lm-err small", "data-testid": "landmark-error" }, "");
         return h("div", { class: "lm-row", "data-testid": "landmark-row" }, h("strong", {}, String(i + 1)), name,
-          h("span", { class: "muted small" }, `px ${l.pixel.map((v) => v.toFixed(0)).join(", ")}`), writer ? del : "");
+          h("span", { class: "muted small" }, `px ${l.pixel.map((v) => v.toFixed(0)).join(", ")}`), errSpans[i], writer ? del : "");
       }));
+      errSpans.length = lms.length;
+      paintAlignment();
     };
     const setMode = (m: "landmarks" | "roi") => {
       mode = m; sel = -1;
@@ -765,7 +868,7 @@ function casePhoto(id: number, body: HTMLElement, alive: Alive, got: (c: CaseRec
       if (mode === "landmarks") { lms[sel].pixel = p; dirtyL = true; } else { roi[sel] = p; dirtyR = true; }
       draw();
     });
-    const up = (e: PointerEvent) => { if (drag === e.pointerId) { drag = null; if (mode === "landmarks") drawList(); } };
+    const up = (e: PointerEvent) => { if (drag === e.pointerId) { drag = null; if (mode === "landmarks") { drawList(); realign(); } } };
     svg.addEventListener("pointerup", up);
     svg.addEventListener("pointercancel", up);
     delR.addEventListener("click", () => { if (sel >= 0) { roi = roi.filter((_, k) => k !== sel); sel = -1; dirtyR = true; draw(); } });
@@ -778,6 +881,7 @@ function casePhoto(id: number, body: HTMLElement, alive: Alive, got: (c: CaseRec
         dirtyL = false;
         showNotice(`Landmarks saved (revision ${r.revision}).`);
         draw();
+        realign();
       } catch (e) { showError(e); draw(); }
     });
     saveR.addEventListener("click", async () => {
@@ -795,6 +899,7 @@ function casePhoto(id: number, body: HTMLElement, alive: Alive, got: (c: CaseRec
     onLeave(() => ro.disconnect());
     drawList();
     setMode("landmarks");
+    realign();
   }, missing);
 }
 
@@ -1108,7 +1213,7 @@ function caseView(id: number, body: HTMLElement, aliveFn: Alive, got: (c: CaseRe
         return;
       }
       showError(e);
-      renderErrText.textContent = `${sentence(plainMessage(e))} The view's settings are kept; try again when the daemon is ready.`;
+      renderErrText.textContent = renderFailureNextStep(plainMessage(e), caseT1);
       renderErr.hidden = false;
       info.textContent = "No picture: the render failed.";
     },

@@ -6,6 +6,7 @@
 import { apiBlob, apiJson } from "./api";
 import { h } from "./dom";
 import { gunzipIfNeeded, parseNifti, type Volume } from "./nifti";
+import { parsePly, surfaceOutline } from "./surface_outline";
 import "./plan_screen.css";
 
 export interface PlanJob { id: number; kind: string; state: string; stage: string; fraction: number; error?: string; params?: Record<string, unknown> }
@@ -61,7 +62,7 @@ export function planScreen(caseId: number, body: HTMLElement, deps: PlanDeps): v
   const canvas = h("canvas", { class: "plan-check", "data-testid": "plan-check", hidden: true });
   const checkText = h("p", { class: "muted", "data-testid": "plan-check-text" }, "");
   body.replaceChildren(h("div", { class: "case-layout" },
-    h("section", { class: "panel" }, h("h2", {}, "Quick check: brain mask (axial, coronal, sagittal)"), canvas, checkText),
+    h("section", { class: "panel" }, h("h2", {}, "Quick check: brain mask and surface (axial, coronal, sagittal)"), canvas, checkText),
     h("aside", { class: "controls" }, h("h2", {}, "Preoperative data"), vols, ...(deps.writable ? [start] : []), progress, stage, cancel)));
   let job: PlanJob | null = null;
   let shownMask = -1;
@@ -100,8 +101,28 @@ export function planScreen(caseId: number, body: HTMLElement, deps: PlanDeps): v
     canvas.hidden = false;
     canvas.dataset.voxels = String(q.voxels);
     const ml = (q.voxels * vol.spacing[0] * vol.spacing[1] * vol.spacing[2]) / 1000;
-    checkText.textContent = `Brain mask ${vol.dims.join("x")} voxels, ${ml.toFixed(0)} ml; slices through its centroid (voxel ${q.centroid.join(", ")}).` +
-      (surf ? ` Brain surface: ${surf.name} (result ${surf.id}).` : "");
+    const maskLine = `Brain mask ${vol.dims.join("x")} voxels, ${ml.toFixed(0)} ml; slices through its centroid (voxel ${q.centroid.join(", ")}).`;
+    checkText.textContent = maskLine + (surf ? " Loading the brain surface…" : " No brain surface in this plan.");
+    if (!surf || !ctx) return;
+    // The surface (src/surface_outline.ts): cut by the same three slices, drawn over the mask.
+    try {
+      const mesh = parsePly(await (await apiBlob(`/api/cases/${caseId}/results/${surf.id}`)).arrayBuffer(), surf.name);
+      if (!deps.alive()) return;
+      const o = surfaceOutline(mesh, vol, q.centroid);
+      const n = q.height;
+      ctx.strokeStyle = "#39c6ff";
+      ctx.lineWidth = 1.5;
+      ctx.beginPath();
+      o.panels.forEach((segs, p) => { for (const [u1, v1, u2, v2] of segs) { ctx.moveTo(p * n + u1 * n, v1 * n); ctx.lineTo(p * n + u2 * n, v2 * n); } });
+      ctx.stroke();
+      const segments = o.panels.reduce((t, x) => t + x.length, 0);
+      canvas.dataset.surfaceSegments = String(segments);
+      canvas.dataset.surfaceInMask = o.inMask.toFixed(3);
+      checkText.textContent = `${maskLine} Brain surface ${surf.name} (${(mesh.faces.length / 3).toLocaleString("en")} triangles) cut by the same slices, in blue: ` +
+        `${(100 * o.inMask).toFixed(0)} % of its outline inside the mask (within 2 voxels)${o.inMask < 0.9 ? " — the surface leaves the brain mask: check the plan" : ""}.`;
+    } catch (e) {
+      checkText.textContent = `${maskLine} The brain surface ${surf.name} could not be drawn: ${e instanceof Error ? e.message : String(e)}`;
+    }
   };
   const track = (j: PlanJob) => {
     if (j.kind !== "plan" || Number(j.params?.case_id) !== caseId || (job && j.id < job.id)) return;
