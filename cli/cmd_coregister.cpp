@@ -25,7 +25,7 @@ nlohmann::json matrix_json(const Eigen::Matrix4d& T) {
 }
 
 void add_coreg_options(CLI::App* cmd, CoregParams& p, std::string& metric) {
-    cmd->add_option("--metric", metric, "nmi (ITK joint-histogram MI, NMI reported) or mattes")
+    cmd->add_option("--metric", metric, "nmi (normalized MI (H(F)+H(M))/H(F,M), Nelder-Mead) or mattes (ITK Mattes MI, gradient descent)")
         ->check(CLI::IsMember({"nmi", "mattes"}))
         ->capture_default_str();
     cmd->add_option("--bins", p.bins, "histogram bins")->capture_default_str();

@@ -11,20 +11,11 @@
 
 #include "cortexfuse/core/error.hpp"
 #include "itk_coregister.hpp"
+#include "itk_grid.hpp"
+#include "nmi_coregistration.hpp"
 
 namespace cf {
 namespace {
-
-itkb::Grid grid_of(const VolumeGeometry& g) {
-    itkb::Grid r;
-    r.dims = g.dims;
-    for (int a = 0; a < 3; ++a) {
-        r.spacing[size_t(a)] = g.spacing_mm[a];
-        r.origin[size_t(a)] = g.origin_mm[a];
-        for (int b = 0; b < 3; ++b) r.direction[size_t(a * 3 + b)] = g.direction(a, b);
-    }
-    return r;
-}
 
 Eigen::Matrix4d to_matrix(const std::array<double, 9>& m, const std::array<double, 3>& o) {
     Eigen::Matrix4d T = Eigen::Matrix4d::Identity();
@@ -226,9 +217,7 @@ CoregResult coregister(const Volume& fixed, const Volume& moving, const CoregPar
     cfg.iterations = p.iterations;
     // The sample count is `sampling` x the fixed head's voxels either way; without the head
     // mask the samples spread over the whole fixed grid (air and the dark skull of a T1 too).
-    // The joint-histogram metric (Nmi) always samples the head only: without the mask it did not
-    // converge on the EPI-like cases either.
-    const bool head_mask = p.fixed_foreground_mask || p.metric == CoregParams::Metric::Nmi;
+    const bool head_mask = p.fixed_foreground_mask;
     cfg.sampling = head_mask ? p.sampling : std::min(1.0, p.sampling * double(nf) / double(fixed.geom.voxel_count()));
     cfg.max_step = p.max_step;
     cfg.min_step = p.min_step;
@@ -249,12 +238,20 @@ CoregResult coregister(const Volume& fixed, const Volume& moving, const CoregPar
         return !(progress.cancel && progress.cancel->cancelled());
     };
     itkb::CoregOutput out;
-    if (p.clip_intensities) {
+    if (p.metric == CoregParams::Metric::Nmi) {
+        // True NMI, optimised without derivatives (nmi_coregistration.cpp says why not ITK).
+        Volume fv, mv;
+        fv.geom = fixed.geom, mv.geom = moving.geom;
+        fv.voxels = p.clip_intensities ? clipped_to_foreground_range(fixed, ffg) : fixed.voxels;
+        mv.voxels = p.clip_intensities ? clipped_to_foreground_range(moving, mfg) : moving.voxels;
+        const size_t samples = size_t(std::max(1000.0, p.sampling * double(nf)));
+        out = detail::nmi_coregister(fv, mv, head_mask ? &ffg : nullptr, samples, p, c_f, t, progress);
+    } else if (p.clip_intensities) {
         const std::vector<float> fc = clipped_to_foreground_range(fixed, ffg), mc = clipped_to_foreground_range(moving, mfg);
-        itkb::coregister_rigid(grid_of(fixed.geom), fc.data(), grid_of(moving.geom), mc.data(),
+        itkb::coregister_rigid(itkb::to_grid(fixed.geom), fc.data(), itkb::to_grid(moving.geom), mc.data(),
                                head_mask ? ffg.voxels.data() : nullptr, cfg, step, out);
     } else {
-        itkb::coregister_rigid(grid_of(fixed.geom), fixed.voxels.data(), grid_of(moving.geom), moving.voxels.data(),
+        itkb::coregister_rigid(itkb::to_grid(fixed.geom), fixed.voxels.data(), itkb::to_grid(moving.geom), moving.voxels.data(),
                                head_mask ? ffg.voxels.data() : nullptr, cfg, step, out);
     }
 
@@ -324,7 +321,7 @@ Volume resample_rigid(const Volume& moving, const Eigen::Matrix4d& T, const Volu
     from_matrix(T, m, o);
     Volume out;
     out.geom = grid;
-    itkb::resample_transformed(grid_of(moving.geom), moving.voxels.data(), m, o, grid_of(grid), nearest, outside, out.voxels);
+    itkb::resample_transformed(itkb::to_grid(moving.geom), moving.voxels.data(), m, o, itkb::to_grid(grid), nearest, outside, out.voxels);
     return out;
 }
 
@@ -458,7 +455,7 @@ SyntheticCoregCase make_synthetic_case(const Volume& t1, uint64_t seed, double m
         remapped.voxels[i] = float(y);
     }
     // FWHM = 2 sqrt(2 ln 2) sigma.
-    itkb::smooth_gaussian(grid_of(remapped.geom), remapped.voxels, blur_fwhm_mm / 2.354820045);
+    itkb::smooth_gaussian(itkb::to_grid(remapped.geom), remapped.voxels, blur_fwhm_mm / 2.354820045);
     // moving(q) = remapped(T^-1 q): resample through the fixed-from-moving transform.
     c.moving = resample_rigid(remapped, c.T_moving_from_fixed.inverse(), g, false, outside);
     std::normal_distribution<double> n(0.0, noise);

@@ -90,10 +90,10 @@ std::vector<fs::path> generate_phantoms(const fs::path& out_dir, int n, const fs
     if (!mask.geom.same_grid(t1.geom))
         throw InputError(mask_path.string(), "brain mask is not on the volume's grid (" + volume_path.string() + ")");
     progress.check();
-    const PhantomSurface surface = build_phantom_surface(t1, mask, Progress{[&](const std::string& s, double f) {
-                                                                                 progress(s, 0.02 + 0.08 * f);
-                                                                             },
-                                                                             progress.cancel});
+    Progress surface_progress;
+    surface_progress.report = [&](const std::string& s, double f) { progress(s, 0.02 + 0.08 * f); };
+    surface_progress.cancel = progress.cancel;
+    const PhantomSurface surface = build_phantom_surface(t1, mask, surface_progress);
     std::error_code ec;
     fs::create_directories(out_dir, ec);
     if (ec || !fs::is_directory(out_dir)) throw InputError(out_dir.string(), "cannot create output folder");

@@ -6,7 +6,7 @@
 #include <tbb/parallel_for.h>
 
 #include "cortexfuse/core/error.hpp"
-#include "itk_bridge.hpp"
+#include "itk_grid.hpp"
 
 namespace fs = std::filesystem;
 
@@ -34,27 +34,8 @@ size_t LabelVolume::count_nonzero() const {
 
 namespace {
 
-itkb::Grid to_grid(const VolumeGeometry& g) {
-    itkb::Grid r;
-    r.dims = g.dims;
-    for (int a = 0; a < 3; ++a) {
-        r.spacing[a] = g.spacing_mm[a];
-        r.origin[a] = g.origin_mm[a];
-        for (int b = 0; b < 3; ++b) r.direction[a * 3 + b] = g.direction(a, b);
-    }
-    return r;
-}
-
-VolumeGeometry from_grid(const itkb::Grid& r) {
-    VolumeGeometry g;
-    g.dims = r.dims;
-    for (int a = 0; a < 3; ++a) {
-        g.spacing_mm[a] = r.spacing[a];
-        g.origin_mm[a] = r.origin[a];
-        for (int b = 0; b < 3; ++b) g.direction(a, b) = r.direction[a * 3 + b];
-    }
-    return g;
-}
+using itkb::from_grid;
+using itkb::to_grid;
 
 void check_geometry(const itkb::Grid& r, const std::string& name) {
     const VolumeGeometry g = from_grid(r);

@@ -169,6 +169,9 @@ TEST(PlanFmri, EpiSpaceMapIsThresholdedRegisteredAndResampledOntoTheT1) {
     EXPECT_EQ(tf.colour.front()[3], 0.0);                       // dark red
     EXPECT_NEAR(tf.colour.back()[0], (*step)["peak"].get<double>(), 1e-9);
     EXPECT_GT(tf.colour.back()[2], 0.9);                        // yellow
-    for (const auto& o : tf.opacity)
-        if (o[0] < 3.1) EXPECT_EQ(o[1], 0.0) << o[0];
+    for (const auto& o : tf.opacity) {
+        if (o[0] < 3.1) {
+            EXPECT_EQ(o[1], 0.0) << o[0];
+        }
+    }
 }

@@ -18,9 +18,12 @@
 namespace cf {
 
 struct CoregParams {
-    /// Mattes: ITK's Mattes MI (Parzen-windowed, sampled); Nmi: ITK's joint-histogram MI
-    /// (the v4 framework has no NMI metric; its joint histogram is the same statistic's
-    /// ingredient, and the final NMI = (H(F)+H(M))/H(F,M) is reported beside it).
+    /// Mattes: ITK's Mattes MI (Parzen-windowed, sampled), gradient descent in ITK's v4
+    /// framework. Nmi: true normalized mutual information NMI = (H(F)+H(M))/H(F,M)
+    /// (Studholme), maximised by NLopt's Nelder-Mead over the same Euler3D parameters,
+    /// multi-resolution (hand-written: ITK v4 has no NMI metric; core/src/nmi_coregistration.cpp).
+    /// For Nmi, `iterations` bounds the evaluations (4 per iteration) and max_step sets the first
+    /// simplex (2 max_step at the coarsest level, halved per level); relaxation is unused.
     enum class Metric { Mattes, Nmi } metric = Metric::Mattes;
     int bins = 32;                                 // [8, 256]
     std::vector<int> shrink{4, 2, 1};              // per level, [1, 16]
@@ -39,7 +42,7 @@ struct CoregParams {
     /// structure (a CT with bone, 8 deg / 11 mm misaligned: 8.1 mm mean error over the brain
     /// with the mask, 0.25 mm without; synthetic CT-like cases 0.145 -> 0.139 mm, EPI-like
     /// 0.24 -> 0.07 mm; docs/planning.md). The sample count stays `sampling` x head voxels.
-    /// Metric::Nmi always uses the mask (without it that metric did not converge on EPI-like cases).
+    /// Both metrics follow this flag.
     bool fixed_foreground_mask = false;
     /// Clip each image to its head foreground's robust range before registration (a copy; the
     /// inputs are not changed): [p0.5 - 0.25 span, p99.5] of the foreground voxels, span =

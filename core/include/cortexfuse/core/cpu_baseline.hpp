@@ -37,6 +37,7 @@ inline constexpr std::size_t kMaxCpuFeatures = 48;
 // running it has it; returns the count (<= kMaxCpuFeatures).
 [[gnu::target("arch=x86-64")]] inline std::size_t compiled_cpu_features(CpuFeature* out) {
     std::size_t n = 0;
+    (void)out;  // a build for the baseline itself lists nothing
 #if defined(__x86_64__) || defined(__i386__)
     __builtin_cpu_init();  // required when called from a constructor
 #define CF_CPU_FEATURE(name) out[n++] = CpuFeature{name, __builtin_cpu_supports(name) != 0}
