@@ -8,7 +8,8 @@
 # Usage: bench/render_vs_vtk.sh            (after: bash scripts/build.sh release)
 # Environment (defaults): BUILD_DIR=build  SIZES="375x250 1280x800"  FRAMES=30 WARMUP=5
 #   ROUNDS=3  THREADS=$(nproc)  SAMPLE_MM=1.0  TF=skin  VOLUME=data/t1_head_mne_ecog.nii.gz
-#   MASK=  GPU=0 (1: also VTK's GPU mapper on Mesa llvmpipe)  FRAMES_DIR= (save one PNG each)
+#   MASK=  GPU=0 (1: also our GL ray caster and VTK's GPU mapper, both on Mesa llvmpipe with
+#   LP_NUM_THREADS=THREADS, ratio VTK GPU / ours GL: issue 3)  FRAMES_DIR= (save one PNG each)
 set -euo pipefail
 root=$(cd "$(dirname "$0")/.." && pwd)
 BUILD_DIR=${BUILD_DIR:-build}
@@ -43,15 +44,17 @@ tmp=$(mktemp -d)
 trap 'rm -rf "$tmp"' EXIT
 for size in $SIZES; do
   for ((r = 0; r < ROUNDS; r++)); do
-    save_ours=() save_vtk=() save_gpu=()
+    save_ours=() save_vtk=() save_gpu=() save_gl=()
     if [ -n "$FRAMES_DIR" ] && [ "$r" = 0 ]; then
       save_ours=(--save-frame "$FRAMES_DIR/ours_$size.png")
       save_vtk=(--save-frame "$FRAMES_DIR/vtk_fixedpoint_$size.png")
       save_gpu=(--save-frame "$FRAMES_DIR/vtk_gpu_$size.png")
+      save_gl=(--save-frame "$FRAMES_DIR/ours_gl_$size.png")
     fi
     "$ours" bench render --renderer cpu --size "$size" "${common[@]}" "${save_ours[@]}" >>"$tmp/ours_$size.jsonl"
     xvfb "$vtk" --mapper fixedpoint --size "$size" "${common[@]}" "${save_vtk[@]}" >>"$tmp/vtk_$size.jsonl"
     if [ "$GPU" = 1 ]; then
+      LP_NUM_THREADS=$THREADS "$ours" bench render --renderer gl --size "$size" "${common[@]}" "${save_gl[@]}" >>"$tmp/gl_$size.jsonl"
       xvfb "$vtk" --mapper gpu --size "$size" "${common[@]}" "${save_gpu[@]}" >>"$tmp/gpu_$size.jsonl"
     fi
   done
@@ -68,13 +71,14 @@ result='{}'
 for size in $SIZES; do
   o=$(summarise "$tmp/ours_$size.jsonl")
   v=$(summarise "$tmp/vtk_$size.jsonl")
-  g=null
-  [ "$GPU" = 1 ] && g=$(summarise "$tmp/gpu_$size.jsonl")
-  result=$(jq -n --argjson acc "$result" --arg size "$size" --argjson o "$o" --argjson v "$v" --argjson g "$g" \
+  g=null gl=null
+  if [ "$GPU" = 1 ]; then g=$(summarise "$tmp/gpu_$size.jsonl"); gl=$(summarise "$tmp/gl_$size.jsonl"); fi
+  result=$(jq -n --argjson acc "$result" --arg size "$size" --argjson o "$o" --argjson v "$v" --argjson g "$g" --argjson gl "$gl" \
     '$acc + {($size): ({ours_cpu: $o, vtk_fixedpoint: $v,
                         ratio_vtk_over_ours: (($v.ms_per_frame_median / $o.ms_per_frame_median) * 100 | round / 100)}
-                       + (if $g == null then {} else {vtk_gpu_llvmpipe: $g,
-                          ratio_vtk_gpu_over_ours: (($g.ms_per_frame_median / $o.ms_per_frame_median) * 100 | round / 100)} end))}')
+                       + (if $g == null then {} else {vtk_gpu_llvmpipe: $g, ours_gl_llvmpipe: $gl,
+                          ratio_vtk_gpu_over_ours: (($g.ms_per_frame_median / $o.ms_per_frame_median) * 100 | round / 100),
+                          ratio_vtk_gpu_over_ours_gl: (($g.ms_per_frame_median / $gl.ms_per_frame_median) * 100 | round / 100)} end))}')
 done
 jq -n --argjson sizes "$result" --arg volume "$VOLUME" --arg tf "$TF" --argjson threads "$THREADS" \
   --argjson sample_mm "$SAMPLE_MM" --argjson frames "$FRAMES" --argjson warmup "$WARMUP" --argjson rounds "$ROUNDS" \
