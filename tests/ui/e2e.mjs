@@ -495,9 +495,12 @@ try {
     expect(await doneCard.getAttribute("data-state") === "succeeded", "the case's registration succeeded");
     step(`registration of case ${importedId} succeeded in ${((Date.now() - tReg) / 1000).toFixed(1)} s`);
   } else {
+    // Only a slow build may run out of time (the ASan+UBSan half sets CF_E2E_SLOW): in the
+    // release build a registration that does not finish is a failure, not a note.
+    if (!process.env.CF_E2E_SLOW) throw new Error(`expected: the registration of case ${importedId} finishes within CF_E2E_REGISTER_S = ${regBudgetMs / 1000} s in the release build (CF_E2E_SLOW=1 allows a slow build to leave it)`);
     await page.locator(`[data-testid="job-card"][data-state="running"][data-case-id="${importedId}"]`).getByTestId("cancel-job").tap();
     await page.locator(`[data-testid="job-card"][data-state="cancelled"][data-case-id="${importedId}"]`).waitFor({ timeout: 60000 });
-    step(`NOTE: the registration did not finish in ${regBudgetMs / 1000} s (slow build or machine): cancelled; the fused view is checked empty`);
+    step(`NOTE: CF_E2E_SLOW: the registration did not finish in ${regBudgetMs / 1000} s: cancelled; the fused view is checked empty`);
   }
   await page.evaluate((id) => { location.hash = `#/case/${id}/contents`; }, importedId);
   await page.getByTestId("case-registrations").filter({ hasText: registered ? "succeeded" : "cancelled" }).waitFor({ timeout: 20000 });
@@ -528,8 +531,9 @@ try {
       await planCheckE2E({ page, step, expect, shot, checkTargets, caseId: importedId });
       await page.evaluate((id) => { location.hash = `#/case/${id}/fused`; }, importedId);
       const tTex = Date.now();
-      await page.waitForFunction(() => document.querySelector('[data-testid="fused-model"]')?.dataset.textured === "true" &&
-                                       document.querySelector('[data-testid="fused-model"]').naturalWidth > 100, null, { timeout: 60000 });
+      // The full-size picture (data-full), not the quarter-size preview that comes first.
+      await page.waitForFunction(() => { const m = document.querySelector('[data-testid="fused-model"]');
+        return m?.dataset.textured === "true" && m.dataset.full === "true" && m.complete && m.naturalWidth > 300; }, null, { timeout: 60000 });
       step(`fused view with the photo on the model after ${((Date.now() - tTex) / 1000).toFixed(1)} s`);
       await shot("12c-fused-textured");
       await checkTargets("fused-textured");
@@ -550,9 +554,10 @@ try {
       // Stimulation tags placed on the photo by touch, shown in 3D (e2e_live_tags.mjs).
       await tagsE2E({ page, step, expect, shot, checkTargets, caseId: importedId, touchDrag });
     } else {
+      if (!process.env.CF_E2E_SLOW) throw new Error(`expected: the plan of case ${importedId} finishes within CF_E2E_PLAN_S = ${planBudgetMs / 1000} s in the release build (CF_E2E_SLOW=1 allows a slow build to leave it)`);
       await page.locator(`[data-testid="job-card"][data-state="running"][data-case-id="${importedId}"]`).filter({ hasText: "plan" })
         .getByTestId("cancel-job").tap().catch(() => {});
-      step(`NOTE: the plan did not finish in ${planBudgetMs / 1000} s (slow build or machine): cancelled; the textured fused view is not checked`);
+      step(`NOTE: CF_E2E_SLOW: the plan did not finish in ${planBudgetMs / 1000} s: cancelled; the textured fused view is not checked`);
     }
   } else {
     await page.getByTestId("no-result").waitFor({ timeout: 20000 });
