@@ -4,7 +4,9 @@ export type Attrs = Record<string, string | number | boolean | ((ev: Event) => v
 export function h<K extends keyof HTMLElementTagNameMap>(tag: K, attrs: Attrs = {}, ...kids: (Node | string)[]): HTMLElementTagNameMap[K] {
   const el = document.createElement(tag);
   for (const [k, v] of Object.entries(attrs)) {
-    if (typeof v === "function") el.addEventListener(k.slice(2), v);
+    // A listener: `onclick` or `click` (two screens wrote the latter, and slicing it made
+    // "ick": their rows could not be selected by a tap).
+    if (typeof v === "function") el.addEventListener(k.startsWith("on") ? k.slice(2) : k, v);
     else if (typeof v === "boolean") { if (v) el.setAttribute(k, ""); }
     else el.setAttribute(k, String(v));
   }

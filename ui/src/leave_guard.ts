@@ -8,17 +8,20 @@ export type LeaveDecision =
 
 export class LeaveGuard {
   private check: (() => string | null) | null = null;
+  private discardFn: (() => void) | null = null;
   private current = "";
   private allowed: string | null = null;
 
   /** The screen now shown at `hash` (called by the router); forgets the last screen's check. */
-  arrived(hash: string): void { this.current = hash; this.check = null; this.allowed = null; }
+  arrived(hash: string): void { this.current = hash; this.check = null; this.discardFn = null; this.allowed = null; }
 
-  /** The shown screen's check: the words for its unsaved edits, or null when all is saved. */
-  set(check: () => string | null): void { this.check = check; }
+  /** The shown screen's check: the words for its unsaved edits, or null when all is saved;
+   *  `discard` forgets the edits kept for later (marks_draft.ts) when the person leaves without saving. */
+  set(check: () => string | null, discard?: () => void): void { this.check = check; this.discardFn = discard ?? null; }
 
-  /** The person chose "Leave without saving" for `to`: the next change to it goes through. */
-  allowOnce(to: string): void { this.allowed = to; }
+  /** The person chose "Leave without saving" for `to`: the next change to it goes through, and
+   *  the screen's kept edits are dropped. */
+  allowOnce(to: string): void { this.allowed = to; this.discardFn?.(); this.discardFn = null; }
 
   /** The hash became `to`. */
   decide(to: string): LeaveDecision {

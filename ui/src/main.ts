@@ -13,7 +13,8 @@ import { h, table } from "./dom";
 import { LinkMonitor, restartNote, TrackerMonitor } from "./link";
 import { dragOrbit, NAMED_VIEWS, namedViewOf, orbitPose, zoomOrbit, type Orbit, type Vec3 } from "./orbit";
 import { TfEditor } from "./tf_editor";
-import { centreLps, gunzipIfNeeded, parseNifti, type Volume as NiftiVolume } from "./nifti";
+import { centreLps, type Volume as NiftiVolume } from "./nifti";
+import { parseNiftiOffThread } from "./off_thread";
 import { orbitCamera, pinchPan } from "./fused_pose";
 import { mountTags, type Intrinsics } from "./tags";
 import { mountLiveView } from "./live_view";
@@ -23,9 +24,10 @@ import { canWrite, KIOSK, loadSession, roleLabel, saveSession, sessionFromLogin,
 import { auditRows, fmtBytes, fmtTime, holdings, patientLine, registrationRows, type AuditEntry, type CaseRecord } from "./case_detail";
 import { trackerScreen } from "./tracker_screen";
 import { FusedModalityPanel, fusedLayers, fusedRequest, layersNeedGl } from "./fused_modalities";
-import { caseRenderFields, defaultLayers, histogramBars, histogramPath, layerHistogramPath, ModalityTabs, newestT1, planModalities, type ModalityLayer, type VolumeHistogram } from "./case_render";
+import { caseRenderFields, defaultLayers, histogramBars, histogramPath, layerHistogramPath, MODALITY_LABEL, ModalityTabs, newestT1, planModalities, type ModalityLayer, type VolumeHistogram } from "./case_render";
 import { renderFailureNextStep, volumeRefusalNextStep } from "./next_step";
 import { LeaveGuard, unsavedMarksText } from "./leave_guard";
+import { MarksDrafts, restoredText, saveFailedText } from "./marks_draft";
 import { jobsPill, rendererPill, toolsPill, trackerPill } from "./status_pills";
 
 // ---- shared state ------------------------------------------------------------------------
@@ -286,6 +288,7 @@ setInterval(() => {
 const tabs: [string, string][] = [["#/cases", "Cases"], ["#/jobs", "Jobs"]];
 let leaveScreen: (() => void) | null = null;
 const leaveGuard = new LeaveGuard();
+const marksDrafts = new MarksDrafts(sessionStorage);
 const leaveAsk = h("div", { class: "banner warn", role: "alert", "data-testid": "leave-ask", hidden: true });
 banners.append(leaveAsk);
 
@@ -736,7 +739,15 @@ function casePhoto(id: number, body: HTMLElement, alive: Alive, got: (c: CaseRec
     let mode: "landmarks" | "roi" = "landmarks";
     let sel = -1;
     let dirtyL = false, dirtyR = false;
-    if (alive()) leaveGuard.set(() => (alive() ? unsavedMarksText(dirtyL, dirtyR) : null));
+    // Unsaved edits kept in this tab (marks_draft.ts, 7.47): restored after a reload or a login
+    // screen, with a line saying they are not saved yet; kept again on every draw below.
+    const lmRev = c.landmarks?.revision ?? null, roiRev = c.roi?.revision ?? null;
+    const draft = writer ? marksDrafts.load(id, photo.id, session.user) : null;
+    if (draft?.landmarks) { lms = draft.landmarks.map((l) => ({ name: l.name, world_mm: l.world_mm, pixel: [l.pixel[0], l.pixel[1]] as Px })); dirtyL = true; }
+    if (draft?.roi) { roi = draft.roi.map((p) => [p[0], p[1]] as Px); dirtyR = true; }
+    const restored = h("p", { class: "banner warn restored", role: "status", "data-testid": "marks-restored", hidden: !draft },
+      draft ? restoredText(draft, { landmarks: lmRev, roi: roiRev }) : "");
+    if (alive()) leaveGuard.set(() => (alive() ? unsavedMarksText(dirtyL, dirtyR) : null), () => marksDrafts.drop(id));
     const info = h("p", { class: "muted", "data-testid": "photo-info" });
     const list = h("div", { class: "list compact", "data-testid": "landmark-list" });
     // The initial alignment of the pairs as they are on the screen (saved or not), asked after
@@ -767,7 +778,7 @@ function casePhoto(id: number, body: HTMLElement, alive: Alive, got: (c: CaseRec
     const roiPanel = h("div", {}, h("h2", {}, "ROI (closed spline)"),
       writer ? h("div", { class: "choices" }, delR, clearR, saveR) : "",
       h("p", { class: "muted" }, writer ? "Tap on the photo to add a control point (it goes into the nearest edge), drag one to move it, tap it and Delete point to remove it." : "Read-only."));
-    const side = h("aside", { class: "controls" }, h("h2", {}, "Mark"), modeBox, lmPanel, roiPanel, info);
+    const side = h("aside", { class: "controls" }, restored, h("h2", {}, "Mark"), modeBox, lmPanel, roiPanel, info);
     body.replaceChildren(h("div", { class: "case-layout" }, stage, side));
     if (writer) onLeave(mountLiveView(id, stage, side, () => route(), showError).stop); // a new photo: live view, Capture
 
@@ -806,6 +817,8 @@ function casePhoto(id: number, body: HTMLElement, alive: Alive, got: (c: CaseRec
       svg.dataset.mode = mode;
       saveL.disabled = !dirtyL;
       saveR.disabled = !dirtyR;
+      if (writer && alive()) marksDrafts.keep(id, photo.id, session.user, dirtyL ? { points: lms, fromRevision: lmRev } : null, dirtyR ? { points: roi, fromRevision: roiRev } : null);
+      if (!dirtyL && !dirtyR) restored.hidden = true;
       delR.disabled = mode !== "roi" || sel < 0;
       const waiting = (pendingModelPoints.get(id) ?? []).length;
       info.textContent = `${photo.original_name}, ${W}x${H} px · ${lms.length} landmark pairs · ROI ${roi.length} points${dirtyL || dirtyR ? " · unsaved changes" : ""}` +
@@ -882,7 +895,7 @@ function casePhoto(id: number, body: HTMLElement, alive: Alive, got: (c: CaseRec
         showNotice(`Landmarks saved (revision ${r.revision}).`);
         draw();
         realign();
-      } catch (e) { showError(e); draw(); }
+      } catch (e) { showError(new UserMessage(saveFailedText("landmarks", e, plainMessage))); draw(); }
     });
     saveR.addEventListener("click", async () => {
       saveR.disabled = true;
@@ -892,7 +905,7 @@ function casePhoto(id: number, body: HTMLElement, alive: Alive, got: (c: CaseRec
         dirtyR = false;
         showNotice(`ROI saved (revision ${r.revision}).`);
         draw();
-      } catch (e) { showError(e); draw(); }
+      } catch (e) { showError(new UserMessage(saveFailedText("ROI", e, plainMessage))); draw(); }
     });
     const ro = new ResizeObserver(() => draw());
     ro.observe(svg as unknown as Element);
@@ -1136,7 +1149,12 @@ function caseView(id: number, body: HTMLElement, aliveFn: Alive, got: (c: CaseRe
   let caseT1 = false;  // without a T1 of its own the case shows the daemon's MRI
   const tabsBox = h("div", { "data-testid": "modality-box" });
   const editor = new TfEditor((tf, final) => {
-    if (tabs && tabs.selected.name !== "t1") { tabs.selected.tf = tf; if (final) want(false); else want(true); return; }
+    if (tabs && tabs.selected.name !== "t1") {
+      tabs.selected.tf = tf;
+      tfTitle.textContent = ` (${MODALITY_LABEL[tabs.selected.name]}: custom, from ${tabs.selected.preset.replace(/_/g, " ")})`;
+      if (final) want(false); else want(true);
+      return;
+    }
     v.tf = tf;
     mark(presets, "");
     tfTitle.textContent = ` (custom, from ${v.preset.replace(/_/g, " ")})`;
@@ -1293,8 +1311,14 @@ function caseView(id: number, body: HTMLElement, aliveFn: Alive, got: (c: CaseRe
     if (planModalities(c).length > 1) {
       layers = defaultLayers(planModalities(c));
       tabs = new ModalityTabs(layers, (l) => {
-        if (l.name === "t1") { if (v.tf) editor.load(v.tf); else if (tfs[v.preset]) editor.load(tfs[v.preset]); }
-        else { const t = l.tf ?? tfs[l.preset]; if (t) editor.load(t); }
+        // The editor's title names the tab's function (it said the T1's on every tab).
+        if (l.name === "t1") {
+          if (v.tf) editor.load(v.tf); else if (tfs[v.preset]) editor.load(tfs[v.preset]);
+          tfTitle.textContent = v.tf ? ` (custom, from ${v.preset.replace(/_/g, " ")})` : ` (${v.preset.replace(/_/g, " ")})`;
+        } else {
+          const t = l.tf ?? tfs[l.preset]; if (t) editor.load(t);
+          tfTitle.textContent = ` (${MODALITY_LABEL[l.name]}: ${l.tf ? "custom, from " : ""}${l.preset.replace(/_/g, " ")})`;
+        }
         const path = layerHistogramPath(id, l.name, null);
         if (l.name !== "t1" && path && !(l.name in layerHist)) {
           layerHist[l.name] = null;
@@ -1350,7 +1374,8 @@ function caseView(id: number, body: HTMLElement, aliveFn: Alive, got: (c: CaseRe
         if (!mv) throw new UserMessage("This case has no brain mask to pick on; upload one (modality mask) in Contents.");
         pickNote.hidden = false;
         pickNote.textContent = `Loading the brain mask (${fmtBytes(mv.size_bytes)})…`;
-        const m = parseNifti(await gunzipIfNeeded(await (await apiBlob(`/api/cases/${id}/volumes/${mv.id}`)).arrayBuffer()), mv.original_name);
+        // Read in a Web Worker (off_thread.ts): on this thread a 256^3 mask froze the page (7.34).
+        const m = await parseNiftiOffThread(await (await apiBlob(`/api/cases/${id}/volumes/${mv.id}`)).arrayBuffer(), mv.original_name);
         // The picture is the daemon's MRI: picking on this case's mask is right only on the same grid.
         const c = centreLps(m);
         const same = geo.dims?.every((d, i) => d === m.dims[i]) !== false &&

@@ -2,11 +2,11 @@
 // job: brain mask, surface, CT/fMRI on the T1) with its progress bar from the push channel's
 // notify_job (and a 2 s poll in case one is dropped), Cancel, and when the plan is there a quick
 // check picture of its brain mask: three orthogonal slices through the mask's centroid, drawn
-// here from the stored plan_brain_mask (NIfTI, read by nifti.ts).
-import { apiBlob, apiJson } from "./api";
+// here from the stored plan_brain_mask (NIfTI), with the plan's surface cut by the same slices;
+// read and computed in a Web Worker (plan_check.ts, off_thread.ts) so the screen never freezes.
+import { apiBlob, apiJson, plainMessage } from "./api";
 import { h } from "./dom";
-import { gunzipIfNeeded, parseNifti, type Volume } from "./nifti";
-import { parsePly, surfaceOutline } from "./surface_outline";
+import { planCheckOffThread } from "./off_thread";
 import "./plan_screen.css";
 
 export interface PlanJob { id: number; kind: string; state: string; stage: string; fraction: number; error?: string; params?: Record<string, unknown> }
@@ -19,29 +19,8 @@ export function planJobOf(jobs: PlanJob[], caseId: number): PlanJob | null {
   return best;
 }
 
-/** Three orthogonal slices (axial, coronal, sagittal in voxel index order) through the mask's
- *  centroid, side by side, as 8-bit grey (255 inside). `n`: each slice's side in the output
- *  (nearest neighbour). Null for an empty mask. */
-export function maskQuickCheck(vol: Volume, n = 160): { width: number; height: number; grey: Uint8ClampedArray; centroid: [number, number, number]; voxels: number } | null {
-  const [X, Y, Z] = vol.dims;
-  let sx = 0, sy = 0, sz = 0, cnt = 0;
-  for (let k = 0; k < Z; k++) for (let j = 0; j < Y; j++) for (let i = 0; i < X; i++)
-    if (vol.data[i + X * (j + Y * k)] > 0) { sx += i; sy += j; sz += k; cnt++; }
-  if (!cnt) return null;
-  const c: [number, number, number] = [Math.round(sx / cnt), Math.round(sy / cnt), Math.round(sz / cnt)];
-  const grey = new Uint8ClampedArray(3 * n * n);
-  const at = (i: number, j: number, k: number) => (vol.data[i + X * (j + Y * k)] > 0 ? 255 : 0);
-  // Panel p: (u, v) over the two axes other than its normal; v flipped so superior/anterior is up.
-  const panels: ((u: number, v: number) => number)[] = [
-    (u, v) => at(Math.floor(u * X), Math.floor((1 - v) * Y), c[2]) , // axial: i across, j up
-    (u, v) => at(Math.floor(u * X), c[1], Math.floor((1 - v) * Z)), // coronal: i across, k up
-    (u, v) => at(c[0], Math.floor(u * Y), Math.floor((1 - v) * Z)), // sagittal: j across, k up
-  ];
-  for (let p = 0; p < 3; p++)
-    for (let r = 0; r < n; r++)
-      for (let q = 0; q < n; q++) grey[r * 3 * n + p * n + q] = panels[p]((q + 0.5) / n, (r + 0.5) / n);
-  return { width: 3 * n, height: n, grey, centroid: c, voxels: cnt };
-}
+// The mask picture's arithmetic lives in plan_check.ts (run in a Web Worker, off_thread.ts).
+export { maskQuickCheck } from "./plan_check";
 
 export interface PlanDeps {
   alive: () => boolean;
@@ -53,7 +32,7 @@ export interface PlanDeps {
 }
 
 export function planScreen(caseId: number, body: HTMLElement, deps: PlanDeps): void {
-  const vols = h("p", { class: "muted", "data-testid": "plan-volumes" }, "Loading…");
+  const vols = h("p", { class: "muted plan-volumes", "data-testid": "plan-volumes" }, "Loading…");
   const start = h("button", { class: "btn primary big", "data-testid": "plan-start", "data-write": "" }, "Start planning");
   const cancel = h("button", { class: "btn danger", "data-testid": "plan-cancel", "data-write": "", hidden: true }, "Cancel planning");
   const bar = h("div", { class: "bar", style: "width:0%" });
@@ -86,8 +65,15 @@ export function planScreen(caseId: number, body: HTMLElement, deps: PlanDeps): v
     if (!mask) { checkText.textContent = "No plan yet: Start planning makes the brain mask and surface."; return; }
     if (mask.id === shownMask) return;
     shownMask = mask.id;
-    const vol = parseNifti(await gunzipIfNeeded(await (await apiBlob(`/api/cases/${caseId}/results/${mask.id}`)).arrayBuffer()), mask.name);
-    const q = maskQuickCheck(vol);
+    // Both files fetched here (async), read and cut in the worker: no long task on this page.
+    const maskBytes = await (await apiBlob(`/api/cases/${caseId}/results/${mask.id}`)).arrayBuffer();
+    let plyBytes: ArrayBuffer | null = null, plyFetchError = "";
+    if (surf) {
+      checkText.textContent = "Reading the brain mask and surface…";
+      try { plyBytes = await (await apiBlob(`/api/cases/${caseId}/results/${surf.id}`)).arrayBuffer(); } catch (e) { plyFetchError = plainMessage(e); }
+    }
+    const chk = await planCheckOffThread(maskBytes, mask.name, plyBytes, surf?.name ?? "");
+    const q = chk.mask;
     if (!deps.alive()) return;
     if (!q) { checkText.textContent = "The plan's brain mask is empty: check the T1."; return; }
     canvas.width = q.width;
@@ -100,29 +86,24 @@ export function planScreen(caseId: number, body: HTMLElement, deps: PlanDeps): v
     }
     canvas.hidden = false;
     canvas.dataset.voxels = String(q.voxels);
-    const ml = (q.voxels * vol.spacing[0] * vol.spacing[1] * vol.spacing[2]) / 1000;
-    const maskLine = `Brain mask ${vol.dims.join("x")} voxels, ${ml.toFixed(0)} ml; slices through its centroid (voxel ${q.centroid.join(", ")}).`;
-    checkText.textContent = maskLine + (surf ? " Loading the brain surface…" : " No brain surface in this plan.");
-    if (!surf || !ctx) return;
+    const ml = (q.voxels * chk.spacing[0] * chk.spacing[1] * chk.spacing[2]) / 1000;
+    const maskLine = `Brain mask ${chk.dims.join("x")} voxels, ${ml.toFixed(0)} ml; slices through its centroid (voxel ${q.centroid.join(", ")}).`;
+    if (!surf) { checkText.textContent = `${maskLine} No brain surface in this plan.`; return; }
+    const why = plyFetchError || chk.surfaceError;
+    if (!chk.surface || !ctx) { checkText.textContent = `${maskLine} The brain surface ${surf.name} could not be drawn: ${why ?? "no picture to draw on"}`; return; }
     // The surface (src/surface_outline.ts): cut by the same three slices, drawn over the mask.
-    try {
-      const mesh = parsePly(await (await apiBlob(`/api/cases/${caseId}/results/${surf.id}`)).arrayBuffer(), surf.name);
-      if (!deps.alive()) return;
-      const o = surfaceOutline(mesh, vol, q.centroid);
-      const n = q.height;
-      ctx.strokeStyle = "#39c6ff";
-      ctx.lineWidth = 1.5;
-      ctx.beginPath();
-      o.panels.forEach((segs, p) => { for (const [u1, v1, u2, v2] of segs) { ctx.moveTo(p * n + u1 * n, v1 * n); ctx.lineTo(p * n + u2 * n, v2 * n); } });
-      ctx.stroke();
-      const segments = o.panels.reduce((t, x) => t + x.length, 0);
-      canvas.dataset.surfaceSegments = String(segments);
-      canvas.dataset.surfaceInMask = o.inMask.toFixed(3);
-      checkText.textContent = `${maskLine} Brain surface ${surf.name} (${(mesh.faces.length / 3).toLocaleString("en")} triangles) cut by the same slices, in blue: ` +
-        `${(100 * o.inMask).toFixed(0)} % of its outline inside the mask (within 2 voxels)${o.inMask < 0.9 ? " — the surface leaves the brain mask: check the plan" : ""}.`;
-    } catch (e) {
-      checkText.textContent = `${maskLine} The brain surface ${surf.name} could not be drawn: ${e instanceof Error ? e.message : String(e)}`;
-    }
+    const o = chk.surface;
+    const n = q.height;
+    ctx.strokeStyle = "#39c6ff";
+    ctx.lineWidth = 1.5;
+    ctx.beginPath();
+    o.panels.forEach((segs, p) => { for (const [u1, v1, u2, v2] of segs) { ctx.moveTo(p * n + u1 * n, v1 * n); ctx.lineTo(p * n + u2 * n, v2 * n); } });
+    ctx.stroke();
+    const segments = o.panels.reduce((t, x) => t + x.length, 0);
+    canvas.dataset.surfaceSegments = String(segments);
+    canvas.dataset.surfaceInMask = o.inMask.toFixed(3);
+    checkText.textContent = `${maskLine} Brain surface ${surf.name} (${o.triangles.toLocaleString("en")} triangles) cut by the same slices, in blue: ` +
+      `${(100 * o.inMask).toFixed(0)} % of its outline inside the mask (within 2 voxels)${o.inMask < 0.9 ? " — the surface leaves the brain mask: check the plan" : ""}.`;
   };
   const track = (j: PlanJob) => {
     if (j.kind !== "plan" || Number(j.params?.case_id) !== caseId || (job && j.id < job.id)) return;

@@ -1,30 +1,7 @@
 import { describe, expect, it } from "vitest";
 import { apply4, centreLps, gunzipIfNeeded, invert4, parseNifti, pickSurface, pixelRay, sampleAt } from "../src/nifti";
 import { orbitPose } from "../src/orbit";
-
-/** A NIfTI-1 file: n^3 uint8 voxels, 1 = inside a ball of radius r voxels round the centre;
- *  qform: identity rotation, offset (ox, oy, oz) RAS, spacing s mm. */
-function ballNifti(n: number, r: number, s: number, o: [number, number, number], qform = true): ArrayBuffer {
-  const buf = new ArrayBuffer(352 + n * n * n);
-  const v = new DataView(buf);
-  v.setInt32(0, 348, true);
-  [3, n, n, n, 1, 1, 1, 1].forEach((d, i) => v.setInt16(40 + 2 * i, d, true));
-  v.setInt16(70, 2, true); v.setInt16(72, 8, true);
-  [1, s, s, s].forEach((p, i) => v.setFloat32(76 + 4 * i, p, true));
-  v.setFloat32(108, 352, true);
-  if (qform) {
-    v.setInt16(252, 1, true);
-    o.forEach((x, i) => v.setFloat32(268 + 4 * i, x, true));
-  } else {
-    v.setInt16(254, 1, true);
-    [[s, 0, 0, o[0]], [0, s, 0, o[1]], [0, 0, s, o[2]]].forEach((row, r) => row.forEach((x, k) => v.setFloat32(280 + 16 * r + 4 * k, x, true)));
-  }
-  const c = (n - 1) / 2;
-  const d = new Uint8Array(buf, 352);
-  for (let k = 0; k < n; k++) for (let j = 0; j < n; j++) for (let i = 0; i < n; i++)
-    d[i + n * (j + n * k)] = Math.hypot(i - c, j - c, k - c) <= r ? 1 : 0;
-  return buf;
-}
+import { ballNifti } from "./volume_fixtures";
 
 describe("surface pick on a NIfTI mask", () => {
   it("reads the grid, maps voxels to LPS (RAS flipped) by the qform or the sform", () => {

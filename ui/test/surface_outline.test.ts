@@ -1,33 +1,7 @@
 import { describe, expect, it } from "vitest";
 import { parsePly, surfaceOutline, type Mesh } from "../src/surface_outline";
 import type { Volume } from "../src/nifti";
-
-/** A UV sphere of radius r about c (world = voxel indices here). */
-function sphere(c: number[], r: number, nu = 48, nv = 24): { v: number[][]; f: number[][] } {
-  const v: number[][] = [], f: number[][] = [];
-  for (let a = 0; a <= nv; a++) for (let b = 0; b < nu; b++) {
-    const th = (Math.PI * a) / nv, ph = (2 * Math.PI * b) / nu;
-    v.push([c[0] + r * Math.sin(th) * Math.cos(ph), c[1] + r * Math.sin(th) * Math.sin(ph), c[2] + r * Math.cos(th)]);
-  }
-  for (let a = 0; a < nv; a++) for (let b = 0; b < nu; b++) {
-    const i = a * nu + b, j = a * nu + (b + 1) % nu;
-    f.push([i, j, j + nu, i + nu]); // quads: the reader fans them into triangles
-  }
-  return { v, f };
-}
-
-/** Binary little-endian PLY as VTK writes it (float xyz, float normals, uchar/int lists). */
-function binaryPly(s: { v: number[][]; f: number[][] }, cut = 0): ArrayBuffer {
-  const head = `ply\nformat binary_little_endian 1.0\ncomment SPACE=LPS\nelement vertex ${s.v.length}\nproperty float x\nproperty float y\nproperty float z\nproperty float nx\nproperty float ny\nproperty float nz\nelement face ${s.f.length}\nproperty list uchar int vertex_indices\nend_header\n`;
-  const hb = new TextEncoder().encode(head);
-  const size = hb.length + s.v.length * 24 + s.f.reduce((t, f) => t + 1 + 4 * f.length, 0);
-  const buf = new ArrayBuffer(size), dv = new DataView(buf);
-  new Uint8Array(buf).set(hb);
-  let o = hb.length;
-  for (const p of s.v) { for (const x of [...p, 0, 0, 1]) { dv.setFloat32(o, x, true); o += 4; } }
-  for (const f of s.f) { dv.setUint8(o++, f.length); for (const i of f) { dv.setInt32(o, i, true); o += 4; } }
-  return cut ? buf.slice(0, size - cut) : buf;
-}
+import { binaryPly, sphere } from "./volume_fixtures";
 
 const I4 = [[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]];
 function ballMask(c: number[], r: number, n = 40): Volume {
