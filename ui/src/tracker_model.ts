@@ -137,6 +137,13 @@ export function needsNewSlices(prev: Vec3 | null, p: Vec3 | null, minMoveMm = 0.
   return Math.hypot(p[0] - prev[0], p[1] - prev[1], p[2] - prev[2]) > minMoveMm;
 }
 
+/** The caption under the slices, with the last failed slice request said (issue 7: a failed
+ *  fetch is not swallowed: the picture would stay old or empty without a word). */
+export function sliceCaptionText(caption: string, sliceError: string): string {
+  if (!sliceError) return caption;
+  return `${caption ? `${caption} ` : ""}The MRI slices could not be loaded (${sliceError.replace(/\.$/, "")}); trying again every second.`;
+}
+
 /** The volume the Tracker screen's slices are cut from: the open case's own T1 (its newest, the
  *  volume its image fiducials are placed on), or null for the daemon's bundled MRI (data.t1). */
 export interface SliceVolume { caseId: number; volumeId: number }

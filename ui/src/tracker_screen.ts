@@ -8,7 +8,7 @@ import { h } from "./dom";
 import { landmarksPanel } from "./landmarks_panel";
 import {
   canRegister, fiducialLines, fmtPoint, freVerdict, needsNewSlices, newFiducialLabel, nextFiducial, pivotLine, placeFiducial, pointerInImage, rateView,
-  caseSliceVolume, sliceTapToImageMm, slicesPath, suggestedFiducialsPath, tipLine, toolViews,
+  caseSliceVolume, sliceCaptionText, sliceTapToImageMm, slicesPath, suggestedFiducialsPath, tipLine, toolViews,
   type NavState, type PivotAnswer, type PointerAnswer, type Registration, type SliceVolume, type Vec3,
 } from "./tracker_model";
 
@@ -221,6 +221,8 @@ export function trackerScreen(caseId: number, body: HTMLElement, deps: TrackerSc
   let lastP: Vec3 | null = null;
   let sliceInFlight = false;
   let sliceUrl = "";
+  let sliceError = "";  // the last slice request's failure, said under the picture until one succeeds
+  let sliceRetryAt = 0;
   const drawLive = () => {
     const views = toolViews(pointer);
     tools.replaceChildren(...views.map((v) =>
@@ -244,8 +246,8 @@ export function trackerScreen(caseId: number, body: HTMLElement, deps: TrackerSc
         caption = `Fiducial “${f.label}” on the MRI ${fmtPoint(p)}: touch it on the patient`;
       } else caption = pointer?.p_reference_mm ? "No registration yet: the pointer cannot be placed on the MRI." : "Pointer or reference not seen.";
     }
-    sliceCaption.textContent = caption;
-    if (sliceVol !== undefined && !sliceInFlight && needsNewSlices(lastP, p)) {
+    sliceCaption.textContent = sliceCaptionText(caption, sliceError);
+    if (sliceVol !== undefined && !sliceInFlight && needsNewSlices(lastP, p) && performance.now() >= sliceRetryAt) {
       sliceInFlight = true;
       const at = p as Vec3;
       const vol = sliceVol;
@@ -257,7 +259,15 @@ export function trackerScreen(caseId: number, body: HTMLElement, deps: TrackerSc
         sliceImg.dataset.point = at.map((v) => v.toFixed(1)).join(",");
         sliceImg.dataset.volume = vol ? `case ${vol.caseId} volume ${vol.volumeId}` : "bundled";
         lastP = at;
-      }).catch(() => { /* the caption and the tools say what is wrong; the next poll retries */ })
+        sliceError = "";
+        delete sliceImg.dataset.error;
+      }).catch((e) => {
+        // Said under the picture (and on it: data-error); asked again a second later.
+        sliceError = plainMessage(e);
+        sliceImg.dataset.error = sliceError;
+        sliceRetryAt = performance.now() + 1000;
+        if (deps.alive()) sliceCaption.textContent = sliceCaptionText(caption, sliceError);
+      })
         .finally(() => { sliceInFlight = false; });
     }
   };

@@ -1,6 +1,6 @@
 import { describe, expect, it } from "vitest";
 import {
-  applyT, canRegister, fiducialLines, freVerdict, needsNewSlices, nextFiducial, pivotLine, pointerInImage, rateView, slicesPath, tipLine, toolView, toolViews,
+  applyT, canRegister, fiducialLines, freVerdict, needsNewSlices, nextFiducial, pivotLine, pointerInImage, rateView, sliceCaptionText, slicesPath, tipLine, toolView, toolViews,
   type NavState, type PointerAnswer, type Registration, type ToolJson, type Vec3,
 } from "../src/tracker_model";
 
@@ -116,6 +116,12 @@ describe("slices", () => {
     expect(needsNewSlices([0, 0, 0], [0.3, 0.3, 0])).toBe(false);
     expect(needsNewSlices([0, 0, 0], [0.4, 0.4, 0])).toBe(true);
     expect(needsNewSlices([0, 0, 0], null)).toBe(false);
+  });
+  it("a failed slice request is said under the picture until one succeeds", () => {
+    expect(sliceCaptionText("Pointer tip (1.0, 2.0, 3.0) mm (accepted registration)", "")).toBe("Pointer tip (1.0, 2.0, 3.0) mm (accepted registration)");
+    expect(sliceCaptionText("Pointer tip (1.0, 2.0, 3.0) mm (accepted registration)", "GET /api/navigation/slices: the daemon is busy (HTTP 503)."))
+      .toBe("Pointer tip (1.0, 2.0, 3.0) mm (accepted registration) The MRI slices could not be loaded (GET /api/navigation/slices: the daemon is busy (HTTP 503)); trying again every second.");
+    expect(sliceCaptionText("", "no connection")).toBe("The MRI slices could not be loaded (no connection); trying again every second.");
   });
   it("the query names the point, size, field of view and format", () => {
     expect(slicesPath([1.234, -5, 60.05], 240)).toBe("/api/navigation/slices?x=1.23&y=-5.00&z=60.05&size=240&fov_mm=220&format=jpeg");
