@@ -18,7 +18,8 @@ export function toolsPill(seen: string[], missing: string[]): string {
 /** Renderer: its backend and state; "failed" names the reason in the banner, not here. */
 export function rendererPill(state: string | undefined, backend: string | undefined): string {
   if (state === "failed") return "Render failed";
-  return `Render ${backend ?? "?"} ${state ?? "unknown"}`;
+  // Before the renderer names its backend (the MRI still loading) the pill said "Render ? ready".
+  return `Render ${backend ? `${backend} ` : ""}${state ?? "unknown"}`;
 }
 
 /** Jobs: "idle" or the counts. */

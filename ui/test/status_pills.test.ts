@@ -16,6 +16,8 @@ describe("status pills (7.30: whole at 1280x800)", () => {
   it("keeps the renderer's backend and state, and the jobs' counts", () => {
     expect(rendererPill("ready", "gl")).toBe("Render gl ready");
     expect(rendererPill("failed", "gl")).toBe("Render failed");
+    expect(rendererPill("ready", undefined)).toBe("Render ready");
+    expect(rendererPill(undefined, undefined)).toBe("Render unknown");
     expect(jobsPill(0, 0)).toBe("Jobs idle");
     expect(jobsPill(1, 2)).toBe("Jobs 1 run, 2 queued");
   });
