@@ -6,9 +6,8 @@ import { createRequire } from "node:module";
 import fs from "node:fs";
 import os from "node:os";
 import path from "node:path";
-import { trackerE2E } from "./e2e_tracker.mjs";
-import { liveViewE2E, planCheckE2E, tagsE2E, trackerPlaceE2E } from "./e2e_live_tags.mjs";
-import { fusedModalitiesE2E, uploadActivation } from "./e2e_fused_modalities.mjs";
+import { liveViewE2E, trackerPlaceE2E } from "./e2e_live_tags.mjs";
+import { screens1920E2E, wholeCaseE2E } from "./e2e_whole_case.mjs";
 
 const [daemonBin, uiDir, artDir] = process.argv.slice(2).map((p) => path.resolve(p));
 const CHROMIUM = process.env.CF_CHROMIUM ?? "/usr/bin/chromium";
@@ -169,7 +168,6 @@ try {
   step(`rendered ${size1}`);
 
   // The Tracker screen: patient registration with the simulated pointer (e2e_tracker.mjs).
-  const trackerCaseId = await trackerE2E({ page, base, step, expect, shot, checkTargets });
   await trackerPlaceE2E({ page, base, step, expect, shot });
   await page.goto(`${base}/#/case/${createdId}`);
   await page.waitForFunction(() => document.querySelector('[data-testid="render-image"]')?.dataset.full === "true", null, { timeout: 30000 });
@@ -293,16 +291,6 @@ try {
   await shot("06-jobs-cancelled");
   step("register job started and cancelled");
 
-  // The same at 1920x1080.
-  await page.setViewportSize({ width: 1920, height: 1080 });
-  await page.getByRole("link", { name: "Cases" }).first().tap();
-  await page.getByTestId("case-search").fill("");
-  await page.getByTestId("case-row").first().waitFor();
-  await shot("07-cases-1920");
-  const n1 = await page.evaluate(() => window.cfRenderTimeline.length);
-  await page.getByTestId("case-row").first().tap();
-  await page.waitForFunction((n) => window.cfRenderTimeline.slice(n).some((e) => e.what === "full"), n1, { timeout: 30000 });
-  await shot("08-case-view-1920");
 
   // ---- Uploads into the case made above: a text file as the photo (refused before upload, in
   // words), bytes that are no volume (the daemon's 400), then the phantom's real photo.
@@ -319,7 +307,7 @@ try {
   await badVol.waitFor({ timeout: 20000 });
   await badVol.filter({ hasText: "not a readable volume" }).filter({ hasText: "or a DICOM folder, then add it again." }).waitFor({ timeout: 5000 }); // 7.44: the next step
   step(`bad volume: ${await badVol.locator(".text").textContent()}`);
-  await shot("09-upload-refused");
+  await page.screenshot({ path: path.join(artDir, "09-upload-refused.png"), fullPage: true }); // the banners (top) and the form (bottom)
   await badPhoto.getByRole("button").tap();
   await badVol.getByRole("button").tap();
   // From the USB stick (7.4): the listing, a corrupt file refused naming it, the DICOM series imported.
@@ -482,119 +470,26 @@ try {
   await page.getByTestId("leave-anyway").tap();
   await page.waitForURL(/\/contents$/, { timeout: 5000 });
   await page.getByTestId("case-holdings").filter({ hasText: `ROI with ${nRoi0 + 1} control points (revision 2)` }).waitFor({ timeout: 20000 });
-  await page.getByTestId("case-register").tap();
-  await page.waitForURL(/#\/jobs$/, { timeout: 10000 });
-  const tReg = Date.now();
-  // ≈ 25-45 s on the idle 2-core machine (release). A slow build (ASan+UBSan, Debug) or a
-  // saturated machine would run past the test's time: after CF_E2E_REGISTER_S (240) s the run
-  // is cancelled, said so, and the Fused screen must then say that there is no result yet.
-  const regBudgetMs = Number(process.env.CF_E2E_REGISTER_S ?? 240) * 1000;
-  const doneCard = page.locator(`[data-testid="job-card"][data-case-id="${importedId}"]`).and(page.locator('[data-state="succeeded"], [data-state="failed"]'));
-  registered = await doneCard.waitFor({ timeout: regBudgetMs }).then(() => true, () => false);
-  if (registered) {
-    expect(await doneCard.getAttribute("data-state") === "succeeded", "the case's registration succeeded");
-    step(`registration of case ${importedId} succeeded in ${((Date.now() - tReg) / 1000).toFixed(1)} s`);
-  } else {
-    // Only a slow build may run out of time (the ASan+UBSan half sets CF_E2E_SLOW): in the
-    // release build a registration that does not finish is a failure, not a note.
-    if (!process.env.CF_E2E_SLOW) throw new Error(`expected: the registration of case ${importedId} finishes within CF_E2E_REGISTER_S = ${regBudgetMs / 1000} s in the release build (CF_E2E_SLOW=1 allows a slow build to leave it)`);
-    await page.locator(`[data-testid="job-card"][data-state="running"][data-case-id="${importedId}"]`).getByTestId("cancel-job").tap();
-    await page.locator(`[data-testid="job-card"][data-state="cancelled"][data-case-id="${importedId}"]`).waitFor({ timeout: 60000 });
-    step(`NOTE: CF_E2E_SLOW: the registration did not finish in ${regBudgetMs / 1000} s: cancelled; the fused view is checked empty`);
-  }
-  await page.evaluate((id) => { location.hash = `#/case/${id}/contents`; }, importedId);
-  await page.getByTestId("case-registrations").filter({ hasText: registered ? "succeeded" : "cancelled" }).waitFor({ timeout: 20000 });
-  await page.getByTestId("case-tab-fused").tap();
-  if (registered) {
-    await page.waitForFunction(() => document.querySelector('[data-testid="fused-model"]')?.dataset.full === "true" &&
-                                     document.querySelector('[data-testid="fused-model"]').naturalWidth > 100 &&
-                                     document.querySelector('[data-testid="fused-photo"]').naturalWidth > 100, null, { timeout: 30000 });
-    step(`fused view: ${await page.getByTestId("fused-info").textContent()}`);
-    await shot("12-fused");
-    await checkTargets("fused");
-    await checkChrome("fused");
-    // Planning (the plan job, from Contents), then the photo on the model: the textured
-    // surface from the registered camera, turned by a drag, and back with Camera view.
-    // An fMRI map first, so that the plan has a layer to toggle (e2e_fused_modalities.mjs).
-    await uploadActivation({ base, caseId: importedId, maskPath: new URL("../../data/brainmask_mne_ecog_binary.nii.gz", import.meta.url).pathname, step, expect });
-    await page.getByTestId("case-tab-contents").tap();
-    await page.getByTestId("case-plan").tap();
-    await page.waitForURL(/#\/jobs$/, { timeout: 10000 });
-    const tPlan = Date.now();
-    const planBudgetMs = Number(process.env.CF_E2E_PLAN_S ?? 180) * 1000;
-    const planCard = page.locator(`[data-testid="job-card"][data-case-id="${importedId}"]`).filter({ hasText: "plan" })
-      .and(page.locator('[data-state="succeeded"], [data-state="failed"]'));
-    const planned = await planCard.waitFor({ timeout: planBudgetMs }).then(() => true, () => false);
-    if (planned) {
-      expect(await planCard.getAttribute("data-state") === "succeeded", "the case's plan succeeded");
-      step(`plan of case ${importedId} succeeded in ${((Date.now() - tPlan) / 1000).toFixed(1)} s`);
-      await planCheckE2E({ page, step, expect, shot, checkTargets, caseId: importedId });
-      await page.evaluate((id) => { location.hash = `#/case/${id}/fused`; }, importedId);
-      const tTex = Date.now();
-      // The full-size picture (data-full), not the quarter-size preview that comes first.
-      await page.waitForFunction(() => { const m = document.querySelector('[data-testid="fused-model"]');
-        return m?.dataset.textured === "true" && m.dataset.full === "true" && m.complete && m.naturalWidth > 300; }, null, { timeout: 60000 });
-      step(`fused view with the photo on the model after ${((Date.now() - tTex) / 1000).toFixed(1)} s`);
-      await shot("12c-fused-textured");
-      await checkTargets("fused-textured");
-      const fb = await page.getByTestId("fused-stage").boundingBox();
-      const fx = Math.round(fb.x + fb.width / 2 - 60), fy = Math.round(fb.y + fb.height / 2);
-      await touchDrag(Array.from({ length: 9 }, (_, i) => ({ x: fx + 15 * i, y: fy })));
-      await page.waitForFunction(() => document.querySelector('[data-testid="fused-stage"]')?.dataset.atCamera === "false", null, { timeout: 30000 });
-      // The turned view's full-size picture (previews while the finger moved), and no fling left
-      // from the drag: a tap during a fling makes no click in chromium.
-      await page.waitForFunction(() => { const i = document.querySelector('[data-testid="fused-model"]'); return i?.dataset.full === "true" && Number(i.dataset.seq) === window.cfViewSeq(); }, null, { timeout: 30000 });
-      await page.waitForTimeout(400);
-      await shot("12d-fused-turned");
-      await page.getByTestId("fused-camera-view").tap();
-      await page.waitForFunction(() => document.querySelector('[data-testid="fused-stage"]')?.dataset.atCamera === "true", null, { timeout: 30000 });
-      step("fused view turned by a drag and back to the camera's view");
-      // The modalities under the photo: fMRI off and on by touch (e2e_fused_modalities.mjs).
-      await fusedModalitiesE2E({ page, step, expect, shot, checkTargets, caseId: importedId });
-      // Stimulation tags placed on the photo by touch, shown in 3D (e2e_live_tags.mjs).
-      await tagsE2E({ page, step, expect, shot, checkTargets, caseId: importedId, touchDrag });
-    } else {
-      if (!process.env.CF_E2E_SLOW) throw new Error(`expected: the plan of case ${importedId} finishes within CF_E2E_PLAN_S = ${planBudgetMs / 1000} s in the release build (CF_E2E_SLOW=1 allows a slow build to leave it)`);
-      await page.locator(`[data-testid="job-card"][data-state="running"][data-case-id="${importedId}"]`).filter({ hasText: "plan" })
-        .getByTestId("cancel-job").tap().catch(() => {});
-      step(`NOTE: CF_E2E_SLOW: the plan did not finish in ${planBudgetMs / 1000} s: cancelled; the textured fused view is not checked`);
-    }
-  } else {
-    await page.getByTestId("no-result").waitFor({ timeout: 20000 });
-  }
-  // A new landmark pair: picked on the model in the 3D view (a ray through the tap onto the
-  // case's brain mask), then its twin tapped on the photo; saved as revision 3.
-  await page.getByTestId("case-tab-view").tap();
-  await page.waitForFunction(() => document.querySelector('[data-testid="render-image"]')?.dataset.full === "true" &&
-                                   document.querySelector('[data-testid="render-stage"]')?.dataset.orbit === "free", null, { timeout: 30000 });
-  await page.getByTestId("pick-landmark").tap();
-  await page.getByTestId("pick-note").filter({ hasText: "Tap the model" }).waitFor({ timeout: 30000 });
-  await page.waitForFunction(() => document.querySelectorAll('[data-testid="pick-dot-lm"]').length === 4, null, { timeout: 10000 });
-  const stBox = await page.getByTestId("render-stage").boundingBox();
-  await page.touchscreen.tap(Math.round(stBox.x + stBox.width / 2), Math.round(stBox.y + stBox.height / 2));
-  const picked = page.getByTestId("notice-banner").filter({ hasText: "Model point picked" });
-  await picked.waitFor({ timeout: 10000 });
-  step(`pick: ${await picked.locator(".text").textContent()}`);
-  await shot("12b-pick-landmark");
-  await page.getByTestId("case-tab-photo").tap();
-  await page.waitForFunction(() => Number(document.querySelector('[data-testid="photo-marks"]')?.dataset.landmarks) === 4 &&
-                                   document.querySelector('[data-testid="photo-image"]')?.naturalWidth > 0, null, { timeout: 20000 });
-  const tw = await toScreen(150, 100);
-  await page.touchscreen.tap(tw.x, tw.y);
-  await page.waitForFunction(() => Number(document.querySelector('[data-testid="photo-marks"]').dataset.landmarks) === 5, null, { timeout: 5000 });
-  await page.waitForFunction(() => document.querySelector('[data-testid="alignment"]')?.dataset.state === "ok" &&
-                                   document.querySelectorAll('[data-testid="lm-projected"]').length === 5, null, { timeout: 10000 });
-  step(`with the fifth pair: ${(await alignmentNow()).text}`);
-  await page.getByTestId("save-landmarks").tap();
-  await page.getByTestId("notice-banner").filter({ hasText: "Landmarks saved (revision 3)" }).waitFor({ timeout: 10000 });
-  step("new landmark pair: model point picked by touch, twin tapped on the photo, saved (revision 3, 5 pairs)");
-  await page.getByTestId("case-tab-audit").tap();
+  step(`imported case ${importedId}: landmarks and ROI edited by touch (its registration is the whole case's, below)`);
+
+  // ---- One case by touch from "new case" to the fused view (e2e_whole_case.mjs): created,
+  // volumes and photo added through Contents, planned on the Preoperative screen, the patient
+  // registration on its Tracker screen, landmark pairs picked on the model and tapped on the
+  // photo, the ROI drawn, registered, the fused view with its layers and tags.
+  let wholeId, planned;
+  ({ id: wholeId, registered, planned } = await wholeCaseE2E({ page, base, step, expect, shot, checkTargets, checkChrome, touchDrag, phantomDir, slow: SLOW }));
+  await page.evaluate((id) => { location.hash = `#/case/${id}/audit`; }, wholeId);
   await page.getByTestId("case-audit").waitFor({ timeout: 20000 });
   const auditKiosk = await page.getByTestId("case-audit").textContent();
-  for (const a of ["case.view", "registration.add", "landmarks.set", "roi.set", "photo.download"])
+  for (const a of ["case.view", "volume.import", "photo.add", "landmarks.set", "roi.set", "photo.download", ...(registered ? ["registration.add"] : [])])
     expect(auditKiosk.includes(a), `the audit trail lists ${a} (${auditKiosk.slice(0, 400)})`);
   await shot("13-case-audit");
-  step("case registered by case_id, fused view and audit trail shown");
+  // The simulated pointer held on the cortex (left, superior: image mm) for the Tracker pictures
+  // that follow (at 1920x1080 and the reviewer's): slices through the head, not the air it roams.
+  expect((await fetch(`${base}/api/tracker/sim/pointer`, { method: "POST", headers: { "Content-Type": "application/json" },
+    body: JSON.stringify({ touch_image_mm: [40, -20, 60] }) })).ok, "the simulated pointer put on the cortex");
+  // Each main screen once at 1920x1080 (7.30).
+  await screens1920E2E({ page, step, expect, shot, checkTargets, checkChrome, caseId: wholeId, registered, planned, slow: SLOW });
 
   // ---- Review: a reviewer logs in (from another host when this machine has a non-loopback
   // address, else on the kiosk with its Log in button) and sees everything read-only.
@@ -627,16 +522,17 @@ try {
   const thumbRows = await rp.evaluate(() => [...document.querySelectorAll('[data-testid="case-row"]')].map((r) => ({
     id: Number(r.getAttribute("href").split("/")[2]), source: r.querySelector('[data-testid="case-thumb"]').dataset.source,
     width: r.querySelector('[data-testid="case-thumb"] img')?.naturalWidth ?? 0, text: r.querySelector('[data-testid="case-thumb"]').textContent, title: r.querySelector('[data-testid="case-thumb"]').title })));
-  const importedResults = await page.evaluate(async (id) => (await (await fetch(`/api/cases/${id}/results`)).json()).results.map((r) => r.kind), importedId);
-  const importedThumb = thumbRows.find((r) => r.id === importedId);
-  const wantFused = registered && importedResults.includes("plan_brain_surface");
-  expect(importedThumb?.source === (wantFused ? "fused" : "photo") && importedThumb.width === 192,
-    `the imported case's thumbnail is its ${wantFused ? "fused view" : "photo"} (${JSON.stringify(importedThumb)})`);
+  const wholeResults = await page.evaluate(async (id) => (await (await fetch(`/api/cases/${id}/results`)).json()).results.map((r) => r.kind), wholeId);
+  const wholeThumb = thumbRows.find((r) => r.id === wholeId), importedThumb = thumbRows.find((r) => r.id === importedId);
+  const wantFused = registered && wholeResults.includes("plan_brain_surface");
+  expect(wholeThumb?.source === (wantFused ? "fused" : "photo") && wholeThumb.width === 192,
+    `the whole case's thumbnail is its ${wantFused ? "fused view" : "photo"} (${JSON.stringify(wholeThumb)})`);
+  expect(importedThumb?.source === "photo" && importedThumb.width === 192, `the imported (unregistered) case's thumbnail is its photo (${JSON.stringify(importedThumb)})`);
   expect(thumbRows.some((r) => r.source === "none" && r.text === "No photo or fused view yet"), `a case without pictures says so (${JSON.stringify(thumbRows)})`);
   expect(thumbRows.some((r) => r.source === "photo" && r.width === 192), "a case with only a photo shows it");
   step(`thumbnails: ${thumbRows.map((r) => `case ${r.id} ${r.source}`).join(", ")}`);
   await shot("13-review-cases", rp);
-  await rp.evaluate((id) => { location.hash = `#/case/${id}/contents`; }, importedId);
+  await rp.evaluate((id) => { location.hash = `#/case/${id}/contents`; }, wholeId);
   await rp.getByTestId("case-registrations").filter({ hasText: registered ? "succeeded" : "cancelled" }).waitFor({ timeout: 20000 });
   expect(await rp.getByTestId("case-register").count() === 0 && await rp.getByTestId("upload-photo").count() === 0, "a reviewer gets no Start registration or uploads");
   await shot("14-review-contents", rp);
@@ -652,12 +548,33 @@ try {
   await rp.getByTestId("case-tab-audit").tap();
   await rp.getByTestId("case-audit").filter({ hasText: "rita" }).waitFor({ timeout: 20000 });
   await shot("15-review-audit", rp);
-  // The Tracker screen read-only: the accepted registration shown, nothing to record or accept.
-  await rp.goto(`${rbase}/#/case/${trackerCaseId}/tracker`);
+  // The Preoperative screen read-only: the plan's check drawn, no Start or Cancel planning.
+  await rp.getByTestId("case-tab-plan").tap();
+  await rp.getByTestId("plan-stage").filter({ hasText: /Plan job \d+: (succeeded|cancelled)/ }).waitFor({ timeout: 20000 });
+  if (wholeResults.includes("plan_brain_mask"))
+    await rp.waitForFunction(() => Number(document.querySelector('[data-testid="plan-check"]')?.dataset.voxels) > 1000, null, { timeout: 60000 });
+  expect(await rp.getByTestId("plan-start").count() === 0 && !(await rp.getByTestId("plan-cancel").isVisible()), "a reviewer gets no Start or Cancel planning");
+  await shot("15c-review-preoperative", rp);
+  // The Tracker screen read-only: the accepted registration shown, nothing to record or accept,
+  // the tri-planar slices loaded. A failed slice request is said under the picture (the first
+  // one here is answered 503 by the test), and the next one a second later loads.
+  let slicesRefused = 0;
+  await rp.route("**/api/navigation/slices**", (r) => (slicesRefused++ ? r.continue() : r.fulfill({ status: 503, contentType: "application/json",
+    body: JSON.stringify({ error: { code: "unavailable", message: "slices: the renderer is busy (refused by the e2e test)" } }) })));
+  await rp.getByTestId("case-tab-tracker").tap();
   await rp.waitForFunction(() => Number(document.querySelector('[data-testid="accepted-line"]')?.dataset.revision) > 0, null, { timeout: 15000 });
+  const sliceFail = rp.getByTestId("tracker-slice-caption").filter({ hasText: "The MRI slices could not be loaded (slices: the renderer is busy (refused by the e2e test))" });
+  await sliceFail.waitFor({ timeout: 10000 });
+  step(`a refused slice request, said: ${await sliceFail.textContent()}`);
+  await rp.waitForFunction(() => { const i = document.querySelector('[data-testid="tracker-slices"]'); return i?.naturalWidth === 720 && !!i.dataset.point && !i.dataset.error; }, null, { timeout: 15000 });
+  await rp.waitForFunction(() => { const t = document.querySelector('[data-testid="tracker-slice-caption"]')?.textContent ?? "";
+    return t.includes("accepted registration") && !t.includes("could not be loaded"); }, null, { timeout: 5000 })
+    .catch(() => { throw new Error("expected: the slice failure line goes once slices load"); });
+  await rp.unroute("**/api/navigation/slices**");
   expect(await rp.getByTestId("record-btn").isDisabled() && await rp.getByTestId("accept-btn").isDisabled() &&
          !(await rp.getByTestId("pivot-btn").isVisible()) && !(await rp.getByTestId("sim-touch-btn").isVisible()),
          "a reviewer cannot record, accept, calibrate or move the simulated pointer on the Tracker screen");
+  step(`reviewer's Tracker: slices of ${await rp.getByTestId("tracker-slices").getAttribute("data-volume")} at ${await rp.getByTestId("tracker-slices").getAttribute("data-point")}; ${await rp.getByTestId("tracker-slice-caption").textContent()}`);
   await shot("15b-review-tracker", rp);
   await rp.getByRole("link", { name: "Jobs" }).tap();
   await rp.getByTestId("job-card").first().waitFor({ timeout: 15000 });

@@ -61,6 +61,8 @@ export async function liveViewE2E({ page, base, step, expect, shot, checkTargets
 export async function tagsE2E({ page, step, expect, shot, checkTargets, caseId, touchDrag }) {
   const api = apiOf(page);
   const n0 = (await api("GET", `/api/cases/${caseId}/tags`)).j.tags.length;
+  // The view's full-size picture first (the screenshots below are of it, not of a preview).
+  await page.waitForFunction(() => { const i = document.querySelector('[data-testid="fused-model"]'); return i?.dataset.full === "true" && i.complete && Number(i.dataset.seq) === window.cfViewSeq(); }, null, { timeout: 60000 });
   await page.getByTestId("tags-status").filter({ hasText: /tag|No tags/ }).waitFor({ timeout: 10000 });
   await page.getByTestId("tag-note").fill("hand motor (e2e)");
   await page.getByTestId("tag-place").tap();

@@ -1,6 +1,6 @@
 // The Tracker screen in the end-to-end test (called by e2e.mjs): a case of its own, the tools
-// live, skin fiducials suggested on the MRI, four touched with the simulated pointer and recorded
-// by touch, a recording refused while the pointer moves (the daemon's words on the screen), the
+// live, skin fiducials suggested on the MRI, two recorded and cleared by `Redo: clear recorded`,
+// four touched with the simulated pointer and recorded by touch, a recording refused while the pointer moves (the daemon's words on the screen), the
 // FRE shown, the registration accepted, the pointer tip on the slices, a pivot calibration with
 // the pointer held still refused, the pointer dropping out shown in red and Record refused.
 // Then cortical landmarks recorded twice (initial, later: a known simulated brain shift) and the
@@ -8,16 +8,21 @@
 // Screenshots tracker-01-fiducials.png, tracker-02-registered.png, tracker-05-brain-shift.png (and
 // the panel alone, tracker-05b-brain-shift-panel.png), tracker-03-pointer-missing.png.
 
-/** page: a playwright page on the daemon at base (the kiosk: every access). */
-export async function trackerE2E({ page, base, step, expect, shot, checkTargets }) {
+/** page: a playwright page on the daemon at base (the kiosk: every access). `caseId`: the case
+ *  whose Tracker screen is shown now (the whole case of e2e_whole_case.mjs); without it a case of
+ *  its own is made over the API. */
+export async function trackerE2E({ page, base, step, expect, shot, checkTargets, caseId }) {
   const api = (method, p, body) => page.evaluate(async ([m, u, b]) => {
     const r = await fetch(u, { method: m, headers: { "Content-Type": "application/json" }, body: b === null ? undefined : JSON.stringify(b) });
     return { status: r.status, j: await r.json().catch(() => null) };
   }, [method, p, body ?? null]);
-  const c = await api("POST", "/api/cases", { title: "E2E tracker case" });
-  expect(c.status === 201, `tracker case created (${c.status})`);
-  const id = c.j.id;
-  await page.goto(`${base}/#/case/${id}/tracker`);
+  let id = caseId;
+  if (id === undefined) {
+    const c = await api("POST", "/api/cases", { title: "E2E tracker case" });
+    expect(c.status === 201, `tracker case created (${c.status})`);
+    id = c.j.id;
+    await page.goto(`${base}/#/case/${id}/tracker`);
+  }
   await page.getByTestId("tracker-screen").waitFor({ timeout: 10000 });
   await page.locator('[data-testid="tool-pointer"][data-level="ok"]').waitFor({ timeout: 20000 });
   await page.locator('[data-testid="tool-reference"][data-level="ok"]').waitFor({ timeout: 5000 });
@@ -39,6 +44,19 @@ export async function trackerE2E({ page, base, step, expect, shot, checkTargets 
     await page.getByTestId("record-btn").tap();
     await page.locator(`[data-testid="fid-row-${label}"][data-recorded="true"]`).waitFor({ timeout: 10000 });
   };
+  // Redo (7.14): two recorded, then `Redo: clear recorded` clears them on the daemon too.
+  for (const label of labels.slice(0, 2)) await recordNext(label);
+  expect(!(await page.getByTestId("redo-btn").isDisabled()), "Redo is offered once fiducials are recorded");
+  const before = (await api("GET", `/api/cases/${id}/navigation`)).j?.patient_fiducials;
+  expect(before?.fiducials?.length === 2, `two fiducials recorded before Redo (${JSON.stringify(before).slice(0, 200)})`);
+  await page.getByTestId("redo-btn").tap();
+  await page.getByTestId("nav-msg").filter({ hasText: "Recorded fiducials cleared" }).waitFor({ timeout: 10000 });
+  await page.waitForFunction(() => document.querySelectorAll('[data-testid^="fid-row-"][data-recorded="true"]').length === 0, null, { timeout: 5000 });
+  const cleared = await api("GET", `/api/cases/${id}/navigation`);
+  expect(cleared.j?.patient_fiducials?.fiducials?.length === 0 && cleared.j.patient_fiducials.revision > before.revision,
+    `Redo cleared the recorded fiducials on the daemon (${JSON.stringify(cleared.j?.patient_fiducials).slice(0, 200)})`);
+  expect(await page.getByTestId("redo-btn").isDisabled(), "nothing left to clear: Redo is off");
+  step(`Redo: 2 recorded fiducials cleared (patient fiducials revision ${before.revision} -> ${cleared.j.patient_fiducials.revision}, none left)`);
   for (const label of labels.slice(0, 3)) await recordNext(label);
 
   // Bad input: the pointer moving while Record is pressed is refused in plain words.
