@@ -301,12 +301,13 @@ export async function wholeCaseE2E(ctx) {
   await page.waitForURL(/#\/jobs$/, { timeout: 10000 });
   const tReg = Date.now();
   const regBudgetMs = Number(process.env.CF_E2E_REGISTER_S ?? 240) * 1000;
-  const doneCard = page.locator(`[data-testid="job-card"][data-case-id="${id}"]`).filter({ hasText: "register" }).and(page.locator('[data-state="succeeded"], [data-state="failed"]'));
+  const doneCard = page.locator(`[data-testid="job-card"][data-case-id="${id}"]`).filter({ hasText: /#\d+ register/ }).and(page.locator('[data-state="succeeded"], [data-state="failed"]'));
   const registered = await doneCard.waitFor({ timeout: regBudgetMs }).then(() => true, () => false);
   if (!registered) {
     if (!lenient) throw new Error(`expected: the registration finishes within CF_E2E_REGISTER_S = ${regBudgetMs / 1000} s in the release build (set CF_E2E_SLOW=1 for a slow build)`);
-    await page.locator(`[data-testid="job-card"][data-state="running"][data-case-id="${id}"]`).getByTestId("cancel-job").tap();
-    await page.locator(`[data-testid="job-card"][data-state="cancelled"][data-case-id="${id}"]`).waitFor({ timeout: 60000 * slow });
+    await page.locator(`[data-testid="job-card"][data-case-id="${id}"]`).filter({ hasText: /#\d+ register/ })
+      .and(page.locator('[data-state="running"], [data-state="queued"]')).getByTestId("cancel-job").tap();
+    await page.locator(`[data-testid="job-card"][data-state="cancelled"][data-case-id="${id}"]`).filter({ hasText: /#\d+ register/ }).waitFor({ timeout: 60000 * slow });
     step(`NOTE: CF_E2E_SLOW: the registration did not finish in ${regBudgetMs / 1000} s: cancelled; the fused view is checked empty`);
     await page.evaluate((cid) => { location.hash = `#/case/${cid}/fused`; }, id);
     await page.getByTestId("no-result").waitFor({ timeout: 20000 });
