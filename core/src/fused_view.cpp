@@ -20,24 +20,34 @@ Pose orbit_pose(const Pose& T, const Eigen::Vector3d& pivot, double yaw_deg, dou
     return M * T;
 }
 
-cv::Mat render_fused(Renderer& volume, const SurfaceMesh& mesh, const TextureMapping& tm, const cv::Mat& tex,
-                     const Intrinsics& K, const Pose& T, double opacity, double depth_slack_mm, const RenderOptions& options) {
+FusedPasses render_fused_passes(Renderer& volume, const SurfaceMesh& mesh, const Intrinsics& K, const Pose& T,
+                                const RenderOptions& options) {
     mesh.validate("mesh");
     K.validate("view camera");
-    if (tm.uv.size() != mesh.vertices.size()) throw InputError("texture mapping", "does not match the mesh");
-    if (tex.empty() || tex.type() != CV_8UC4) throw InputError("texture", "must be 8-bit BGRA");
-    if (!(opacity >= 0 && opacity <= 1)) throw InputError("opacity", "must be in [0, 1]");
     RenderOptions o = options;
     o.want_rgb = true;
     o.want_depth = true;
-    RenderImage img;
-    volume.render(K, T, o, img);
-    const RasterBuffers rb = rasterize(mesh.raster(), K, T, 1.0f);
-    cv::Mat out(K.height, K.width, CV_8UC3);
+    FusedPasses p;
+    volume.render(K, T, o, p.volume);
+    p.surface = rasterize(mesh.raster(), K, T, 1.0f);
+    return p;
+}
+
+cv::Mat composite_fused(const FusedPasses& p, const SurfaceMesh& mesh, const TextureMapping& tm, const cv::Mat& tex,
+                        double opacity, double depth_slack_mm) {
+    if (tm.uv.size() != mesh.vertices.size()) throw InputError("texture mapping", "does not match the mesh");
+    if (tex.empty() || tex.type() != CV_8UC4) throw InputError("texture", "must be 8-bit BGRA");
+    if (!(opacity >= 0 && opacity <= 1)) throw InputError("opacity", "must be in [0, 1]");
+    const RenderImage& img = p.volume;
+    const RasterBuffers& rb = p.surface;
+    const int W = rb.width, H = rb.height;
+    if (img.rgb.size() != size_t(W) * H * 3 || img.depth_mm.size() != size_t(W) * H)
+        throw InputError("fused passes", "the volume rendering and the surface buffers differ in size");
+    cv::Mat out(H, W, CV_8UC3);
     const int tw = tex.cols, th = tex.rows;
-    for (int v = 0; v < K.height; ++v)
-        for (int u = 0; u < K.width; ++u) {
-            const size_t i = size_t(v) * K.width + u;
+    for (int v = 0; v < H; ++v)
+        for (int u = 0; u < W; ++u) {
+            const size_t i = size_t(v) * W + u;
             double c[3] = {img.rgb[3 * i + 2] / 255.0, img.rgb[3 * i + 1] / 255.0, img.rgb[3 * i] / 255.0};  // BGR
             const int32_t f = rb.triangle[i];
             if (f >= 0) {
@@ -69,6 +79,15 @@ cv::Mat render_fused(Renderer& volume, const SurfaceMesh& mesh, const TextureMap
                                                  cv::saturate_cast<uchar>(c[2] * 255));
         }
     return out;
+}
+
+cv::Mat render_fused(Renderer& volume, const SurfaceMesh& mesh, const TextureMapping& tm, const cv::Mat& tex,
+                     const Intrinsics& K, const Pose& T, double opacity, double depth_slack_mm, const RenderOptions& options) {
+    // The inputs of the blend checked before the (costly) passes, as before the split.
+    if (tm.uv.size() != mesh.vertices.size()) throw InputError("texture mapping", "does not match the mesh");
+    if (tex.empty() || tex.type() != CV_8UC4) throw InputError("texture", "must be 8-bit BGRA");
+    if (!(opacity >= 0 && opacity <= 1)) throw InputError("opacity", "must be in [0, 1]");
+    return composite_fused(render_fused_passes(volume, mesh, K, T, options), mesh, tm, tex, opacity, depth_slack_mm);
 }
 
 }  // namespace cf

@@ -179,6 +179,7 @@ struct RenderModule::Job {
     std::string view_key;          // the view's fields as canonical JSON (format/quality/pixel left out)
     Eigen::Vector2d pixel{0, 0};   // pick
     double surface_opacity = 0.5;  // fused
+    std::string pass_key;          // fused: the view but its surface opacity, with its sources' keys
     std::string stream;            // a client's stream of views: a newer job of it supersedes this one
     std::shared_ptr<const FusedSource> fused_src;
     std::shared_ptr<const CaseRenderSource> case_src;  // per-case view (else data.t1)
@@ -227,6 +228,14 @@ struct RenderModule::Scene {
     cv::Mat texture_bgra;
     Intrinsics photo_K;  // the fused view's photo camera and ROI alpha (photo size; empty: no ROI),
     cv::Mat roi_alpha;   // kept for the CT layer's craniotomy (craniotomy_keep_mask)
+    /// The passes (volume rendering, surface buffers) of the last two fused views (a preview and
+    /// a full size), by Job::pass_key and renderer: a view that differs only in its surface
+    /// opacity (the opacity slider) is blended again from them, nothing rendered.
+    struct FusedPassesOf {
+        std::string key;
+        FusedPasses passes;
+    };
+    std::list<FusedPassesOf> fused_passes;
 
     /// After a GL failure (a lost context, a GL error): every GL renderer goes, so the next
     /// request makes new ones (renderer.kind auto: a CPU one when GL cannot be made any more).
@@ -245,6 +254,7 @@ struct RenderModule::Scene {
         fusion_prev.reset();
         fusion_prev_key.clear();
         last_view_key.clear();
+        fused_passes.clear();
     }
 };
 
@@ -447,6 +457,13 @@ RenderedImage RenderModule::fused(const nlohmann::json& r, std::shared_ptr<const
     job->surface_opacity = get_num(r, "surface_opacity", 0.5, 0.0, 1.0);
     if (!job->pose) throw bad("T_camera_from_world", "missing (the fused view needs a pose)");
     job->fused_src = std::move(src);
+    {
+        nlohmann::json k = r;
+        for (const char* f : {"format", "quality", "pixel", "stream", "surface_opacity"}) k.erase(f);
+        job->pass_key = k.dump() + "|" + job->fused_src->texture_key + "|" + job->fused_src->surface_key + "|" +
+                        (job->fused_src->volume ? job->fused_src->volume->key : std::string("-"));
+        for (const auto& L : layers) job->pass_key += "|" + L.name + "=" + (L.volume ? L.volume->key : std::string("-"));
+    }
     parse_layers(*job, r, layers);
     auto fut = job->result.get_future();
     enqueue(job);
@@ -811,7 +828,17 @@ void RenderModule::loop() {
             cv::Mat bgr;
             const auto t0 = Clock::now();
             if (job->mode == Job::Mode::fused) {
-                bgr = render_fused(*r, sc.mesh, sc.mapping, sc.texture_bgra, K, T, job->surface_opacity, 3.0, ro);
+                const std::string key = job->pass_key + "|" + r->name();
+                auto it = std::find_if(sc.fused_passes.begin(), sc.fused_passes.end(), [&](const auto& p) { return p.key == key; });
+                if (it == sc.fused_passes.end()) {
+                    sc.fused_passes.push_front({key, render_fused_passes(*r, sc.mesh, K, T, ro)});
+                    if (sc.fused_passes.size() > 2) sc.fused_passes.pop_back();
+                } else {
+                    sc.fused_passes.splice(sc.fused_passes.begin(), sc.fused_passes, it);
+                    std::lock_guard lk(mu_);
+                    ++fused_passes_reused_;
+                }
+                bgr = composite_fused(sc.fused_passes.front().passes, sc.mesh, sc.mapping, sc.texture_bgra, job->surface_opacity, 3.0);
             } else {
                 render_in_bands(*r, K, T, ro, img, *job);
                 sc.last_depth_mm = std::move(img.depth_mm);
@@ -899,6 +926,7 @@ nlohmann::json RenderModule::status_json() const {
                      {"banded_renders", banded_},
                      {"superseded", superseded_},
                      {"superseded_in_flight", superseded_in_flight_},
+                     {"fused_passes_reused", fused_passes_reused_},
                      {"gl_failures", gl_failures_},
                      {"queued", queue_.size()}};
     if (!error_.empty()) j["error"] = error_;

@@ -153,7 +153,7 @@ private:
     nlohmann::json volume_info_;  // set once the volume is loaded
     std::string backend_, backend_reason_;
     std::uint64_t renders_ = 0, failures_ = 0, fusion_uploads_ = 0, case_preparations_ = 0;
-    std::uint64_t superseded_ = 0, superseded_in_flight_ = 0, banded_ = 0;
+    std::uint64_t superseded_ = 0, superseded_in_flight_ = 0, banded_ = 0, fused_passes_reused_ = 0;
     std::uint64_t gl_failures_ = 0;  // GL failures that dropped the GL renderers (status: gl_failures)
     double last_render_ms_ = 0;
     bool thread_done_ = false;

@@ -336,6 +336,38 @@ TEST(FusedModalities, TheCtLayerHasTheCraniotomyAndTogglingItUploadsNothing) {
     EXPECT_EQ(mean_abs_diff(decode(again), a), 0.0) << "the same request draws the same picture";
 }
 
+// The fused view's opacity slider (7.32): a view that differs only in surface_opacity is blended
+// again from the kept passes (volume rendering and surface buffers), nothing rendered; the
+// picture is the one a fresh render gives. Any other change (a layer's weight, the pose) renders.
+TEST(FusedModalities, TheOpacitySliderBlendsTheKeptPassesAgain) {
+    const Server& s = gl();
+    ASSERT_GT(g_case, 0);
+    auto reused = [&] { return s.get("/api/status").j["modules"]["renderer"]["fused_passes_reused"].get<std::uint64_t>(); };
+    // A viewpoint no other test asks for: its first picture is rendered, not reused.
+    auto at = [&](double surface_opacity, double fmri_weight = 1.0, double yaw_deg = 7) {
+        json b = fused_body(true, fmri_weight, surface_opacity);
+        b["T_camera_from_world"] = pose_to_json(orbit_pose(world().pc.T_camera_from_world, Eigen::Vector3d(0, 10, 0), yaw_deg, 0));
+        return b;
+    };
+    const Reply first = s.post(base() + "/fused", at(0.8));
+    SKIP_WITHOUT_GL(first);
+    ASSERT_EQ(first.status, 200) << first.body;
+    const std::uint64_t r0 = reused();
+    const Reply faint = s.post(base() + "/fused", at(0.2));
+    ASSERT_EQ(faint.status, 200) << faint.body;
+    EXPECT_EQ(reused(), r0 + 1) << "another surface opacity blends the kept passes";
+    const Reply again = s.post(base() + "/fused", at(0.8));
+    ASSERT_EQ(again.status, 200) << again.body;
+    EXPECT_EQ(reused(), r0 + 2);
+    const cv::Mat a = decode(first), f = decode(faint), g = decode(again);
+    EXPECT_EQ(mean_abs_diff(g, a), 0.0) << "blended again: the very picture of the first, rendered, request";
+    EXPECT_GT(mean_abs_diff(f, a), 0.5) << "the photo fainter at 0.2";
+    // A layer's weight or the pose is another view: rendered.
+    ASSERT_EQ(s.post(base() + "/fused", at(0.8, 0.4)).status, 200);
+    ASSERT_EQ(s.post(base() + "/fused", at(0.8, 1.0, 9)).status, 200);
+    EXPECT_EQ(reused(), r0 + 2) << "a weight or pose change is rendered, not blended";
+}
+
 TEST(FusedModalities, BadModalitiesAreRefusedNamingThemAndNothingIsStored) {
     const Server& s = gl();
     ASSERT_GT(g_case, 0);

@@ -110,6 +110,36 @@ TEST(GlGolden, TransferFunctionChangeAndPartialOutputs) {
     EXPECT_EQ(grey_before, b.grey.data());
 }
 
+// Every request of a view sets its transfer function again; the empty-space skipping is made
+// again only when the table entries with opacity > 0 change (gl_renderer.cpp). A table showing
+// the same entries (half the opacity), then one showing others (skin), then the first again: each
+// drawn exactly as by a renderer made with that transfer function.
+TEST(GlGolden, SkippingIsKeptOnlyWhileTheShownRangeIsTheSame) {
+    CF_REQUIRE_GL();
+    const Volume v = sphere_volume(48);
+    const Intrinsics K = small_camera(100, 80, 150);
+    const Pose T = look_at(v.geom.center_world_mm(), {0.2, 1, 0.3}, 200);
+    TransferFunction half = preset_transfer_function("cortex_t1");
+    for (auto& p : half.opacity) p[1] *= 0.5;
+    auto gl = make_gl_renderer(v, preset_transfer_function("cortex_t1"));
+    RenderOptions opt;
+    RenderImage warm;
+    gl->render(K, T, opt, warm);
+    for (const auto& [tf, what] : {std::pair{half, "the same range at half the opacity"}, std::pair{preset_transfer_function("skin"), "skin"},
+                                   std::pair{preset_transfer_function("cortex_t1"), "cortex_t1 again"}}) {
+        SCOPED_TRACE(what);
+        gl->set_transfer_function(tf);
+        auto fresh = make_gl_renderer(v, tf);
+        RenderImage a, b;
+        gl->render(K, T, opt, a);
+        fresh->render(K, T, opt, b);
+        const ImageDiff d = compare(b, a);
+        std::cout << what << ": " << d << "\n";
+        for (int c = 0; c < 3; ++c) EXPECT_EQ(d.mean_abs_rgb[c], 0.0) << "channel " << c;
+        EXPECT_EQ(d.coverage_agreement, 1.0);
+    }
+}
+
 TEST(GlGolden, BundledMriCrop) {
     CF_REQUIRE_GL();
     const std::filesystem::path t1 = std::filesystem::path(CF_DATA_DIR) / "t1_head_mne_ecog.nii.gz";

@@ -17,6 +17,7 @@
 #include <vector>
 
 #include "cortexfuse/core/camera.hpp"
+#include "cortexfuse/core/rasterizer.hpp"
 #include "cortexfuse/core/renderer.hpp"
 #include "cortexfuse/core/roi.hpp"
 #include "cortexfuse/core/surface.hpp"
@@ -107,6 +108,19 @@ void write_textured_glb(const SurfaceMesh& mesh, const TextureMapping& tm, const
 cv::Mat render_fused(Renderer& volume, const SurfaceMesh& mesh, const TextureMapping& tm, const cv::Mat& texture_bgra,
                      const Intrinsics& K_view, const Pose& T_view, double opacity, double depth_slack_mm = 3.0,
                      const RenderOptions& options = {});
+
+/// render_fused in two steps, so that a caller can keep the passes of a view and blend them
+/// again at another opacity (the fused view's opacity slider): the volume rendering (RGB and
+/// first-hit depth) and the surface's geometry buffers from (K_view, T_view) ...
+struct FusedPasses {
+    RenderImage volume;
+    RasterBuffers surface;
+};
+FusedPasses render_fused_passes(Renderer& volume, const SurfaceMesh& mesh, const Intrinsics& K_view, const Pose& T_view,
+                                const RenderOptions& options = {});
+/// ... and the picture from them: the same pixels render_fused gives for the same arguments.
+cv::Mat composite_fused(const FusedPasses& passes, const SurfaceMesh& mesh, const TextureMapping& tm, const cv::Mat& texture_bgra,
+                        double opacity, double depth_slack_mm = 3.0);
 
 /// A free viewpoint: the camera orbited about `pivot_world_mm` by yaw (about the camera's
 /// vertical axis) and pitch (about its horizontal axis), distance kept.
