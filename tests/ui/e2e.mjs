@@ -477,7 +477,8 @@ try {
   // registration on its Tracker screen, landmark pairs picked on the model and tapped on the
   // photo, the ROI drawn, registered, the fused view with its layers and tags.
   let wholeId, planned;
-  ({ id: wholeId, registered, planned } = await wholeCaseE2E({ page, base, step, expect, shot, checkTargets, checkChrome, touchDrag, phantomDir, slow: SLOW }));
+  ({ id: wholeId, registered, planned } = await wholeCaseE2E({ page, base, step, expect, shot, checkTargets, checkChrome, touchDrag, phantomDir, slow: SLOW,
+    shotPath: (name) => path.join(artDir, `${name}.png`) }));
   await page.evaluate((id) => { location.hash = `#/case/${id}/audit`; }, wholeId);
   await page.getByTestId("case-audit").waitFor({ timeout: 20000 });
   const auditKiosk = await page.getByTestId("case-audit").textContent();

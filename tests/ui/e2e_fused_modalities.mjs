@@ -12,7 +12,8 @@ import zlib from "node:zlib";
  *  rising towards the last slice, 0 elsewhere; float32 NIfTI-1, gzip. (Half the brain
  *  "active": part of it shows from the phantom's camera, the photo lies on the rest.)
  *  With `blob` ({centre_lps_mm, radius_mm}) instead one cluster, as the daemon's FusedModalities
- *  test makes: z 10 at the centre falling to 4 at the radius (world from the header's sform). */
+ *  test makes, but inside the mask only: z 10 at the centre falling to 4 at the radius (world from
+ *  the header's sform). */
 export function activationMap(maskPath, blob = null) {
   const m = zlib.gunzipSync(fs.readFileSync(maskPath));
   const dims = [m.readInt16LE(42), m.readInt16LE(44), m.readInt16LE(46)];
@@ -42,7 +43,8 @@ export function activationMap(maskPath, blob = null) {
       const x = -(S[0][0] * i + S[0][1] * j + S[0][2] * k + S[0][3]), y = -(S[1][0] * i + S[1][1] * j + S[1][2] * k + S[1][3]);
       const z = S[2][0] * i + S[2][1] * j + S[2][2] * k + S[2][3];
       const d = Math.hypot(x - cx, y - cy, z - cz);
-      if (d < r) out.writeFloatLE(4 + 6 * (1 - d / r), 352 + 4 * (i + dims[0] * (j + dims[1] * k)));
+      const v = i + dims[0] * (j + dims[1] * k);
+      if (d < r && m[off + v]) out.writeFloatLE(4 + 6 * (1 - d / r), 352 + 4 * v);  // in the brain only
     }
     return zlib.gzipSync(out, { level: 1 });
   }

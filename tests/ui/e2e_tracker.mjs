@@ -156,6 +156,7 @@ export async function trackerE2E({ page, base, step, expect, shot, checkTargets,
   await lmLost.waitFor({ timeout: 10000 });
   const lmAfter = await api("GET", `/api/cases/${id}/navigation/landmarks`);
   expect(lmAfter.j?.landmarks?.length === 6, `a landmark refused while the pointer is hidden stores nothing (${lmAfter.j?.landmarks?.length} landmarks)`);
+  await page.evaluate(() => window.scrollTo(0, 0)); // the red tool row and the refusal in the picture
   await shot("tracker-03-pointer-missing");
   expect((await api("POST", "/api/tracker/sim/pointer", { free: true })).status === 200, "simulated pointer back");
   await page.locator('[data-testid="tool-pointer"][data-level="ok"]').waitFor({ timeout: 10000 });

@@ -83,10 +83,10 @@ export async function wholeCaseE2E(ctx) {
   };
   await upload(T1, "T1", "t1_head_mne_ecog.nii.gz");
   await upload(MASK, "mask", "brainmask_mne_ecog_binary.nii.gz");
-  // The fMRI map: one cluster (radius 12 mm) about the middle of the phantom's landmarks, on the
+  // The fMRI map: one cluster (radius 15 mm) about the middle of the phantom's landmarks, on the
   // cortex the camera sees (the photo lies on the rest of the craniotomy).
   const lmMean = [0, 1, 2].map((a) => truth.landmarks_true.reduce((t, l) => t + l.world_mm[a], 0) / truth.landmarks_true.length);
-  await upload({ name: "fmri_e2e.nii.gz", mimeType: "application/gzip", buffer: activationMap(MASK, { centre_lps_mm: lmMean, radius_mm: 12 }) }, "fMRI", "fmri_e2e.nii.gz");
+  await upload({ name: "fmri_e2e.nii.gz", mimeType: "application/gzip", buffer: activationMap(MASK, { centre_lps_mm: lmMean, radius_mm: 15 }) }, "fMRI", "fmri_e2e.nii.gz");
   await upload({ name: "ct_e2e.nii.gz", mimeType: "application/gzip", buffer: ctLikeMap(T1, MASK, 2) }, "CT", "ct_e2e.nii.gz");
   await page.getByTestId("upload-photo-focal").fill(String(K.fx));
   await page.getByTestId("upload-photo-file").setInputFiles(path.join(phantomDir, folder.photo));
@@ -96,7 +96,7 @@ export async function wholeCaseE2E(ctx) {
   const mods = rec0.volumes.map((v) => v.modality).sort().join(",");
   expect(mods === "CT,T1,fMRI,mask" && rec0.photos.length === 1 && rec0.photos[0].intrinsics.fx === K.fx,
     `the case holds what was uploaded by touch (${mods}; ${rec0.photos.length} photo, fx ${rec0.photos[0]?.intrinsics?.fx})`);
-  await shot("20-whole-contents");
+  await page.screenshot({ path: ctx.shotPath("20-whole-contents"), fullPage: true }); // what it holds (top) and Add data (bottom)
   step(`whole case: T1, mask, fMRI, CT and the photo (${K.width}x${K.height}, fx ${K.fx}) added through Contents`);
 
   // ---- Planning from the Preoperative screen: cancelled once while it runs, then to the end.
