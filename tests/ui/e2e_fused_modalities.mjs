@@ -158,12 +158,12 @@ export async function fusedModalitiesE2E({ page, step, expect, shot, checkTarget
   await page.waitForFunction((l) => document.querySelector('[data-testid="fused-model"]')?.dataset.layers === l, all, { timeout: 60000 });
   // The case's Tracker screen cuts its slices from the case's own T1 (not the bundled MRI),
   // then back to the fused view at the camera.
-  await page.evaluate((id) => { location.hash = `#/case/${id}/tracker`; }, caseId);
+  await page.getByTestId("case-tab-tracker").tap();
   await page.waitForFunction(() => /^case \d+ volume \d+$/.test(document.querySelector('[data-testid="suggest-btn"]')?.dataset.volume ?? ""), null, { timeout: 20000 });
   const vol = await page.getByTestId("suggest-btn").getAttribute("data-volume");
   expect(vol.startsWith(`case ${caseId} `), `the Tracker's slices are of the case's volume (${vol})`);
   step(`Tracker screen of case ${caseId}: slices and suggested fiducials from ${vol}`);
-  await page.evaluate((id) => { location.hash = `#/case/${id}/fused`; }, caseId);
+  await page.getByTestId("case-tab-fused").tap();
   await page.waitForFunction(() => document.querySelector('[data-testid="fused-model"]')?.dataset.textured === "true" &&
                                    document.querySelector('[data-testid="fused-stage"]')?.dataset.atCamera === "true", null, { timeout: 60000 });
 }

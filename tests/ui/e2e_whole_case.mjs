@@ -296,6 +296,13 @@ export async function wholeCaseE2E(ctx) {
   step(`ROI drawn by ${roiTrue.length} taps, point 1 dragged ${moved.toFixed(1)} px, a point added and deleted (Delete point), saved (revision 1)`);
 
   // ---- Registration from Contents, to the end.
+  // From the Jobs screen back to this case by touch: Cases, its row, then one of its tabs.
+  const openByTouch = async (tab) => {
+    await page.getByRole("link", { name: "Cases" }).first().tap();
+    await page.getByTestId("case-row").filter({ hasText: "E2E whole case" }).first().tap();
+    await page.waitForURL(new RegExp(`#/case/${id}$`), { timeout: 10000 });
+    await page.getByTestId(`case-tab-${tab}`).tap();
+  };
   await page.getByTestId("case-tab-contents").tap();
   await page.getByTestId("case-register").tap();
   await page.waitForURL(/#\/jobs$/, { timeout: 10000 });
@@ -309,13 +316,13 @@ export async function wholeCaseE2E(ctx) {
       .and(page.locator('[data-state="running"], [data-state="queued"]')).getByTestId("cancel-job").tap();
     await page.locator(`[data-testid="job-card"][data-state="cancelled"][data-case-id="${id}"]`).filter({ hasText: /#\d+ register/ }).waitFor({ timeout: 60000 * slow });
     step(`NOTE: CF_E2E_SLOW: the registration did not finish in ${regBudgetMs / 1000} s: cancelled; the fused view is checked empty`);
-    await page.evaluate((cid) => { location.hash = `#/case/${cid}/fused`; }, id);
+    await openByTouch("fused");
     await page.getByTestId("no-result").waitFor({ timeout: 20000 });
     return { id, registered, planned };
   }
   expect(await doneCard.getAttribute("data-state") === "succeeded", `the case's registration succeeded (${await doneCard.textContent()})`);
   step(`registration of case ${id} succeeded in ${((Date.now() - tReg) / 1000).toFixed(1)} s`);
-  await page.evaluate((cid) => { location.hash = `#/case/${cid}/contents`; }, id);
+  await openByTouch("contents");
   await page.getByTestId("case-registrations").filter({ hasText: "succeeded" }).waitFor({ timeout: 20000 });
 
   // ---- The fused view: at full size (not the preview), textured when planned.
@@ -354,7 +361,7 @@ export async function wholeCaseE2E(ctx) {
  *  bar colour counted in the canvas), CT hidden and shown (a new picture each time), a tf point
  *  added by a tap on the plot. Screenshots 08b-case-view-ct-tab, 08c-case-view-tf-point-added. */
 export async function caseViewLayersE2E({ page, step, expect, shot, checkTargets, caseId, slow }) {
-  await page.evaluate((id) => { location.hash = `#/case/${id}`; }, caseId);
+  await page.getByTestId("case-tab-view").tap();
   await page.getByTestId("modality-tabs").waitFor({ timeout: 20000 });
   const tabs = await page.locator('[data-testid="modality-tabs"] [data-testid^="modality-"][data-value]').evaluateAll((els) => els.map((e) => e.dataset.value));
   expect(JSON.stringify(tabs) === JSON.stringify(["t1", "ct", "fmri"]), `the case view offers the plan's modalities as tabs (${tabs})`);
