@@ -38,11 +38,11 @@ const LONGTASK_MS = Number(process.env.CF_E2E_LONGTASK_MS ?? 200);
 const REGISTER_S = Number(process.env.CF_E2E_REGISTER_S ?? 240);
 const PLAN_S = Number(process.env.CF_E2E_PLAN_S ?? 180);
 // Under a sanitizer build (CF_E2E_SLOW) the daemon is many times slower: a short registration
-// (one stage of 40 evaluations at 96 px; the default, ≈ 10 s in release, would take minutes),
+// (one stage of 60 evaluations at 96 px; the default, ≈ 10 s in release, would take minutes),
 // and a plan that does not finish in PLAN_S is a NOTE there (a failure in release).
 const SLOW = !!process.env.CF_E2E_SLOW;
 const REGISTER_PARAMS = SLOW ? { starts: [[0, 0, 0, 0, 0, 0]], search_stages: [], search_keep: 0, keep_best: 1, estimate_light: false, refine_stages: [],
-                                  final_stages: [{ name: "slow", fwhm_mm: 4, step_mm: 1, step_deg: 1, render_width_px: 96, max_evaluations: 40 }] } : null;
+                                  final_stages: [{ name: "slow", fwhm_mm: 4, step_mm: 1, step_deg: 1, render_width_px: 96, max_evaluations: 60 }] } : null;
 
 fs.mkdirSync(artDir, { recursive: true });
 const tmp = fs.mkdtempSync(path.join(os.tmpdir(), "cf-ui-resilience-"));
@@ -333,21 +333,27 @@ try {
   await page.goto(`${base}/#/jobs`);
   await page.getByTestId("sb-link").filter({ hasText: "Live" }).waitFor({ timeout: 15000 });
   let from = await now();
+  const tJob = Date.now();
   const job = await api("POST", "/api/jobs", { kind: "register", params: { case_id: caseId, ...(REGISTER_PARAMS ? { params: REGISTER_PARAMS } : {}) } });
   expect(job.status === 201 || job.status === 202, `registration job started (${job.status})`);
   const jobId = job.j.id;
   const card = page.locator(`[data-testid="job-card"][data-job-id="${jobId}"]`);
-  await card.and(page.locator('[data-state="running"]')).filter({ hasText: /NMI \d\.\d{4}/ }).waitFor({ timeout: 60000 });
-  const evalsAtStop = (await api("GET", `/api/jobs/${jobId}`)).j.figures?.evaluation ?? 0;
+  await card.waitFor({ timeout: 10000 });
+  // The simulator stopped at once (the default registration runs ≈ 7-10 s here, the short one
+  // under a sanitizer build longer than its stop): the job is queued or running then.
   await stopSim();
+  const atStop = (await api("GET", `/api/jobs/${jobId}`)).j;
+  const evalsAtStop = atStop.figures?.evaluation ?? 0;
+  expect(["queued", "running"].includes(atStop.state), `the registration is under way when the tracker stops (${atStop.state})`);
   await trackerLine.waitFor({ timeout: 10000 });
   const lineText = await trackerLine.locator(".text").textContent();
   expect(lineText.includes("a registration that is running goes on"), `the line says the registration goes on (${lineText})`);
   await page.waitForTimeout(1500);
-  expect(await card.getAttribute("data-state") === "running", "the registration still runs after the tracker stopped");
+  const stateLater = await card.getAttribute("data-state");
+  expect(stateLater === "running" || (SLOW && stateLater === "succeeded"), `the registration still runs after the tracker stopped (${stateLater})`);
   expect(await page.getByTestId("error-banner").count() === 0, `no error shown (${await page.getByTestId("error-banner").allTextContents()})`);
   await shot("resilience-05-job-tracker-lost");
-  step(`registration job ${jobId} at evaluation ${evalsAtStop} when the simulator stopped: ${lineText}`);
+  step(`registration job ${jobId} ${atStop.state} (evaluation ${evalsAtStop}) when the simulator stopped: ${lineText}`);
   const done = card.and(page.locator('[data-state="succeeded"], [data-state="failed"], [data-state="cancelled"]'));
   await done.waitFor({ timeout: REGISTER_S * 1000 });
   const jEnd = (await api("GET", `/api/jobs/${jobId}`)).j;
@@ -355,7 +361,7 @@ try {
   expect((jEnd.figures?.evaluation ?? jEnd.result?.evaluations ?? 0) > evalsAtStop, `evaluations went on after the stop (${evalsAtStop} -> ${jEnd.figures?.evaluation ?? jEnd.result?.evaluations})`);
   expect(await page.getByTestId("error-banner").count() === 0, "no error shown while the tracker was gone");
   await measure("a registration job runs (Jobs screen, live NMI plot)", from);
-  step(`registration succeeded in ${((Date.now() - tStop) / 1000).toFixed(0)} s after the test's first stop; ${jEnd.figures?.evaluation ?? "?"} evaluations`);
+  step(`registration succeeded in ${((Date.now() - tJob) / 1000).toFixed(1)} s without the tracker; ${jEnd.figures?.evaluation ?? "?"} evaluations`);
   sim = await startSim();
   await trackerLine.waitFor({ state: "hidden", timeout: 20000 });
 
