@@ -10,12 +10,13 @@
 #include "cortexfuse/core/error.hpp"
 #include "cortexfuse/core/landmarks.hpp"
 #include "cortexfuse/core/registration.hpp"
+#include "cortexfuse/render/renderer_factory.hpp"
 
 namespace cf::cli {
 
 namespace {
 struct LandscapeCmd {
-    std::string case_dir, out, params_file, about = "truth";
+    std::string case_dir, out, params_file, about = "truth", renderer = "cpu";
     double fwhm_mm = 4, range_mm = 10, range_deg = 10;
     int width_px = 190, steps = 41;
 };
@@ -33,11 +34,14 @@ void add_landscape(CLI::App& app) {
     sub->add_option("--range-mm", o->range_mm, "Translation range +-")->capture_default_str();
     sub->add_option("--range-deg", o->range_deg, "Rotation range +-")->capture_default_str();
     sub->add_option("--steps", o->steps, "Samples per parameter")->capture_default_str();
+    sub->add_option("--renderer", o->renderer, "Ray caster for the similarity: cpu, gl (EGL/OpenGL) or auto")
+        ->capture_default_str();
     sub->callback([o] {
         run_guarded("landscape", [&] {
             LoadedCase c = load_case(o->case_dir);
             RegistrationParams params = RegistrationParams::defaults();
             if (!o->params_file.empty()) params = registration_params_from_json(read_json_file(o->params_file), o->params_file);
+            params.renderer_factory = renderer_factory(parse_renderer_kind(o->renderer));
             Pose T;
             if (o->about == "truth") {
                 if (!c.spec.truth) throw InputError(o->case_dir + "/truth.json", "missing (use --about landmarks)");
