@@ -12,6 +12,7 @@
 #include "cortexfuse/core/error.hpp"
 #include "itk_coregister.hpp"
 #include "itk_grid.hpp"
+#include "joint_nmi.hpp"
 #include "nmi_coregistration.hpp"
 
 namespace cf {
@@ -180,20 +181,7 @@ double nmi_after_transform(const Volume& a, const Volume& b, const Eigen::Matrix
                 joint[size_t(ba) * bins + bb] += 1, n += 1;
             }
     if (n < 100) return 1.0;
-    std::vector<double> pa(size_t(bins), 0.0), pb(size_t(bins), 0.0);
-    double hab = 0;
-    for (int x = 0; x < bins; ++x)
-        for (int y = 0; y < bins; ++y) {
-            const double p = joint[size_t(x) * bins + y] / n;
-            pa[size_t(x)] += p, pb[size_t(y)] += p;
-            if (p > 0) hab -= p * std::log(p);
-        }
-    double ha = 0, hb = 0;
-    for (int x = 0; x < bins; ++x) {
-        if (pa[size_t(x)] > 0) ha -= pa[size_t(x)] * std::log(pa[size_t(x)]);
-        if (pb[size_t(x)] > 0) hb -= pb[size_t(x)] * std::log(pb[size_t(x)]);
-    }
-    return hab > 0 ? (ha + hb) / hab : 1.0;
+    return detail::nmi_of_joint(joint, bins, n);
 }
 
 CoregResult coregister(const Volume& fixed, const Volume& moving, const CoregParams& p, const Progress& progress) {

@@ -27,6 +27,7 @@
 #include "cortexfuse/core/error.hpp"
 #include "cortexfuse/core/optimizer.hpp"
 #include "itk_grid.hpp"
+#include "joint_nmi.hpp"
 
 namespace cf::detail {
 namespace {
@@ -98,22 +99,7 @@ public:
     }
 
 private:
-    double nmi_of_joint(double n) const {
-        std::vector<double> pf(size_t(bins_), 0.0), pm(size_t(bins_), 0.0);
-        double hfm = 0;
-        for (int x = 0; x < bins_; ++x)
-            for (int y = 0; y < bins_; ++y) {
-                const double pr = joint_[size_t(x) * size_t(bins_) + size_t(y)] / n;
-                pf[size_t(x)] += pr, pm[size_t(y)] += pr;
-                if (pr > 0) hfm -= pr * std::log(pr);
-            }
-        double hf = 0, hm = 0;
-        for (int x = 0; x < bins_; ++x) {
-            if (pf[size_t(x)] > 0) hf -= pf[size_t(x)] * std::log(pf[size_t(x)]);
-            if (pm[size_t(x)] > 0) hm -= pm[size_t(x)] * std::log(pm[size_t(x)]);
-        }
-        return hfm > 0 ? (hf + hm) / hfm : 1.0;
-    }
+    double nmi_of_joint(double n) const { return detail::nmi_of_joint(joint_, bins_, n); }
 
     const VolumeGeometry& geom_;
     const Level& lv_;
