@@ -10,7 +10,7 @@
 
 namespace cf {
 
-void block_min_max(const std::vector<uint16_t>& q, const std::array<int, 3>& d, int B, std::array<int, 3>& nb,
+void block_min_max(std::span<const uint16_t> q, const std::array<int, 3>& d, int B, std::array<int, 3>& nb,
                    std::vector<uint16_t>& bmin, std::vector<uint16_t>& bmax) {
     nb = {(d[0] + B - 1) / B, (d[1] + B - 1) / B, (d[2] + B - 1) / B};
     const size_t n = size_t(nb[0]) * size_t(nb[1]) * size_t(nb[2]);

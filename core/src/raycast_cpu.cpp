@@ -14,6 +14,7 @@
 #include <memory>
 
 #include "cortexfuse/core/renderer.hpp"
+#include "huge_page_allocator.hpp"
 #include "trilinear.hpp"
 
 namespace cf {
@@ -491,7 +492,7 @@ private:
 
     VolumeGeometry geom_;
     double lo_ = 0, hi_ = 1;
-    std::vector<uint16_t> q_;
+    std::vector<uint16_t, detail::HugePageAllocator<uint16_t>> q_;  // 2 MiB pages where the kernel agrees
     std::array<int, 3> nb_{};
     std::vector<uint16_t> brick_min_, brick_max_;
     std::vector<uint8_t> brick_visible_;

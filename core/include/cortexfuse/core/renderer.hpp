@@ -7,6 +7,7 @@
 #include <Eigen/Core>
 #include <cstdint>
 #include <memory>
+#include <span>
 #include <vector>
 
 #include "cortexfuse/core/camera.hpp"
@@ -70,7 +71,7 @@ std::unique_ptr<Renderer> make_cpu_renderer(const Volume& volume, const Transfer
 /// Per block of `block`^3 voxels of the x-fastest grid `q` (dims), the least and greatest value
 /// over the block and a one-voxel apron (the reach of trilinear interpolation); `n_blocks` gets
 /// the grid of blocks (x fastest). Shared by the ray casters (CPU and GLSL).
-void block_min_max(const std::vector<uint16_t>& q, const std::array<int, 3>& dims, int block, std::array<int, 3>& n_blocks,
+void block_min_max(std::span<const uint16_t> q, const std::array<int, 3>& dims, int block, std::array<int, 3>& n_blocks,
                    std::vector<uint16_t>& min, std::vector<uint16_t>& max);
 
 /// Empty-space map shared by the ray casters (CPU and GLSL): for each brick of a grid of
