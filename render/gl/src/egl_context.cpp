@@ -1,6 +1,7 @@
 // Headless EGL: the device platform first (an NVIDIA GPU, or Mesa's software device), then
 // Mesa's surfaceless platform (llvmpipe). Without an explicit platform EGL tries X11 and
-// fails on a machine with no display, so the default display is never used.
+// fails on a machine with no display, so the default display is never used. CF_GL_PLATFORM
+// holds it to one of the two.
 #include "egl_context.hpp"
 
 #include <epoxy/gl.h>
@@ -78,6 +79,14 @@ EglContext::EglContext() {
     if (const char* e = std::getenv("CF_GL_DISABLE"); e && std::strcmp(e, "0") != 0 && *e)
         throw GlError("disabled by CF_GL_DISABLE");
     std::lock_guard lock(egl_mutex());
+    // CF_GL_PLATFORM=device|surfaceless keeps only that platform: a cart whose GPU driver
+    // misbehaves can be held to Mesa, and the tests run each platform this machine has.
+    std::string only;
+    if (const char* e = std::getenv("CF_GL_PLATFORM"); e && *e) {
+        only = e;
+        if (only != "device" && only != "surfaceless")
+            throw GlError("CF_GL_PLATFORM=" + only + ": not an EGL platform (device or surfaceless)");
+    }
     std::string notes;
     std::vector<Candidate> candidates;
     try {
@@ -85,6 +94,11 @@ EglContext::EglContext() {
     } catch (const std::exception& ex) {
         // libepoxy aborts or throws when libEGL cannot be loaded at all.
         throw GlError(std::string("no EGL library: ") + ex.what());
+    }
+    if (!only.empty()) {
+        std::erase_if(candidates, [&](const Candidate& c) { return c.platform != only; });
+        if (candidates.empty())
+            throw GlError("CF_GL_PLATFORM=" + only + ": no such EGL display here (" + notes + "unset it to try every platform)");
     }
     if (candidates.empty()) throw GlError("no headless EGL display (" + notes + "need a GPU driver or Mesa)");
     for (const auto& c : candidates) {
