@@ -18,6 +18,7 @@ PACKAGES=(
   libcivetweb-dev libcivetweb1 libcpp-httplib-dev libsystemd-dev systemd
   libsqlite3-dev sqlite3 libsodium-dev libzip-dev
   chromium
+  cage xwayland grim
 )
 missing=()
 for p in "${PACKAGES[@]}"; do
