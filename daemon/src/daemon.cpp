@@ -34,6 +34,7 @@
 #include "render_module.hpp"
 #include "tags_api.hpp"
 #include "landmark_pose_api.hpp"
+#include "drafts_api.hpp"
 #include "thumbnail_api.hpp"
 #include "media_api.hpp"
 #include "tracker_module.hpp"
@@ -443,6 +444,7 @@ void Daemon::start() {
     register_case_data_endpoints(d.registry, *d.store, d.work_dir, d.cfg.max_upload_bytes);
     register_tags_endpoints(d.registry, *d.store, d.work_dir);  // stimulation tags (tags_api.cpp)
     register_landmark_pose_endpoints(d.registry, *d.store);     // landmarks' initial alignment (landmark_pose_api.cpp)
+    register_draft_endpoints(d.registry, *d.store);             // unsaved marks kept across a browser restart (drafts_api.cpp)
     register_thumbnail_endpoints(d.registry, *d.store, d.work_dir);  // the archive's thumbnails (thumbnail_api.cpp)
     register_media_endpoints(d.registry, *d.store, d.cfg.removable_media_root, d.work_dir, d.cfg.max_upload_bytes);  // USB sticks (media_api.cpp)
     NavigationOptions nav_options;

@@ -49,7 +49,7 @@ struct Reply {
     httplib::Headers headers;
 };
 
-/// One request to 127.0.0.1:`port` (GET, DELETE, or POST with `body` as `mime`), with a bearer
+/// One request to 127.0.0.1:`port` (GET, DELETE, or POST or PUT with `body` as `mime`), with a bearer
 /// `token` when not empty, waiting up to `read_timeout_s` for the answer.
 inline Reply http_request(int port, const std::string& method, const std::string& path, const std::string& body = "",
                           const std::string& mime = "application/json", const std::string& token = "", int read_timeout_s = 120) {
@@ -59,6 +59,7 @@ inline Reply http_request(int port, const std::string& method, const std::string
     if (!token.empty()) h.emplace("Authorization", "Bearer " + token);
     httplib::Result r = method == "GET"      ? c.Get(path.c_str(), h)
                         : method == "DELETE" ? c.Delete(path.c_str(), h)
+                        : method == "PUT"    ? c.Put(path.c_str(), h, body, mime.c_str())
                                              : c.Post(path.c_str(), h, body, mime.c_str());
     Reply out;
     if (!r) return out;
@@ -106,6 +107,9 @@ public:
     Reply del(const std::string& path, const std::string& token = "") const { return request("DELETE", path, "", "application/json", token); }
     Reply post(const std::string& path, const json& body, const std::string& token = "") const {
         return request("POST", path, body.dump(), "application/json", token);
+    }
+    Reply put(const std::string& path, const json& body, const std::string& token = "") const {
+        return request("PUT", path, body.dump(), "application/json", token);
     }
     Reply post_raw(const std::string& path, const std::string& bytes, const std::string& token = "") const {
         return request("POST", path, bytes, "application/octet-stream", token);

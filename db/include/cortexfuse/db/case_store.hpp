@@ -220,6 +220,20 @@ struct AuditEntry {
     nlohmann::json details;
 };
 
+/// A draft: unsaved edits of one screen kept for one owner (docs/case-store.md "Drafts").
+/// Not a revision: one per (case, kind, owner), replaced by each keep, gone once dropped.
+struct DraftRecord {
+    std::int64_t case_id = 0;
+    std::string kind;   ///< "marks" (Photo & marks: landmarks and ROI)
+    std::string owner;  ///< "kiosk", or "user:ID" for a logged-in user
+    std::optional<std::int64_t> user_id;
+    nlohmann::json body;    ///< the edits as the client sent them (a JSON object)
+    UtcTime saved_utc{};    ///< when the client made the edit (its clock)
+    UtcTime updated_utc{};  ///< when the store kept it
+};
+/// The largest draft body kept (its compact JSON, bytes).
+inline constexpr std::size_t kMaxDraftBytes = 512 * 1024;
+
 struct IntegrityReport {
     bool ok = true;
     std::vector<std::string> problems;  ///< one line each: integrity_check, foreign keys, blobs
@@ -296,6 +310,19 @@ public:
     std::string read_blob(const std::string& sha256) const;
     /// Verified copy of a blob to `dest` (e.g. a volume under its original name for a reader).
     void copy_blob_to(const std::string& sha256, const std::filesystem::path& dest) const;
+
+    // -- drafts (unsaved edits; not revisions, not exported, the case's updated_utc untouched) --
+    /// The owner's draft of `kind` for the case, or nullopt. NotFound for an unknown case.
+    std::optional<DraftRecord> get_draft(std::int64_t case_id, const std::string& kind, const std::string& owner);
+    /// Keeps `body` (a JSON object of at most kMaxDraftBytes) as the owner's draft, replacing
+    /// the one there. Audited `draft.keep` (with `audit_details`) only when there was none:
+    /// updates are not changes of the case. Returns true when it was new. One transaction.
+    bool keep_draft(std::int64_t case_id, const std::string& kind, const std::string& owner, const nlohmann::json& body,
+                    UtcTime saved_utc, const Actor& by = {}, const nlohmann::json& audit_details = nlohmann::json::object());
+    /// Removes the owner's draft; audited `draft.drop` with `reason` ("saved" or "discarded")
+    /// when there was one. Returns whether there was one. NotFound for an unknown case.
+    bool drop_draft(std::int64_t case_id, const std::string& kind, const std::string& owner, const std::string& reason,
+                    const Actor& by = {});
 
     // -- users and sessions --
     /// name: 1..64 of [A-Za-z0-9._-]; password: 8..1024 bytes. Conflict when the name is taken.
