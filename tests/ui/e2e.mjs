@@ -1,20 +1,15 @@
 // End-to-end test of the web UI in Debian's chromium (playwright-core, no downloaded browser)
 // against cortexfused started here on a free port with a temporary state folder.
 // Usage: node e2e.mjs CORTEXFUSED UI_DIR ARTEFACT_DIR   (exit 0 pass, 1 fail, 77 skip)
-import { spawn } from "node:child_process";
-import { createRequire } from "node:module";
 import fs from "node:fs";
 import os from "node:os";
 import path from "node:path";
+import { chromiumOrExit, Daemons, launchTouchBrowser } from "./e2e_lib.mjs";
 import { liveViewE2E, trackerPlaceE2E } from "./e2e_live_tags.mjs";
 import { screens1920E2E, wholeCaseE2E } from "./e2e_whole_case.mjs";
 
 const [daemonBin, uiDir, artDir] = process.argv.slice(2).map((p) => path.resolve(p));
-const CHROMIUM = process.env.CF_CHROMIUM ?? "/usr/bin/chromium";
-if (!fs.existsSync(CHROMIUM)) { console.log(`SKIP: no ${CHROMIUM}`); process.exit(77); }
-if (!fs.existsSync(path.join(uiDir, "node_modules", "playwright-core"))) { console.log("SKIP: ui/node_modules missing (npm ci)"); process.exit(77); }
-if (!fs.existsSync(path.join(uiDir, "dist", "index.html"))) { console.error("FAIL: ui/dist/index.html missing: the UI build failed"); process.exit(1); }
-const { chromium } = createRequire(path.join(uiDir, "package.json"))("playwright-core");
+const browserKit = chromiumOrExit(uiDir); // skip 77 without chromium or playwright-core, fail without ui/dist
 
 fs.mkdirSync(artDir, { recursive: true });
 const tmp = fs.mkdtempSync(path.join(os.tmpdir(), "cf-ui-e2e-"));
@@ -41,30 +36,10 @@ const step = (s) => console.log(`[e2e] ${s}`);
 const SLOW = process.env.CF_E2E_SLOW ? 4 : 1;
 const expect = (cond, what) => { if (!cond) throw new Error(`expected: ${what}`); };
 
-/** Starts cortexfused with a configuration file; resolves to { proc, base } once it listens. */
-const startDaemon = (configFile) => new Promise((resolve, reject) => {
-  const proc = spawn(daemonBin, ["--config", configFile], { stdio: ["ignore", "pipe", "pipe"] });
-  let err = "", out = "";
-  proc.stderr.on("data", (d) => { err += d; if (err.length > 20000) err = err.slice(-10000); });
-  const t = setTimeout(() => reject(new Error(`daemon did not start in 30 s: ${err.slice(-2000)}`)), 30000);
-  proc.stdout.on("data", (d) => {
-    out += d;
-    const m = /listening on (http:\/\/[^\s]+)/.exec(out);
-    if (m) { clearTimeout(t); resolve({ proc, base: m[1].replace(/\/$/, "").replace("0.0.0.0", "127.0.0.1") }); }
-  });
-  proc.on("exit", (c, sig) => {
-    clearTimeout(t);
-    if (!proc.stoppedByTest) daemonDeaths.push(`cortexfused exited (code ${c}, signal ${sig}) by itself; its stderr ends:\n${err.slice(-6000)}`);
-    reject(new Error(`daemon exited ${c}: ${err.slice(-2000)}`));
-  });
-});
-const daemonDeaths = [];
-const stopDaemon = async (proc) => {
-  if (!proc || proc.exitCode !== null || proc.signalCode !== null) return;
-  proc.stoppedByTest = true;
-  proc.kill("SIGTERM");
-  await new Promise((r) => { const t = setTimeout(() => { proc.kill("SIGKILL"); r(); }, 10000); proc.on("exit", () => { clearTimeout(t); r(); }); });
-};
+// cortexfused started and stopped by the test (e2e_lib.mjs): start(config) resolves to { proc, base }.
+const daemons = new Daemons(daemonBin);
+const startDaemon = (configFile) => daemons.start(configFile);
+const stopDaemon = (proc) => daemons.stop(proc);
 
 try {
   let base;
@@ -72,12 +47,7 @@ try {
   step(`daemon at ${base}`);
 
   // A fresh profile folder each run (playwright passes it as --user-data-dir).
-  browser = await chromium.launchPersistentContext(path.join(tmp, "chromium"), {
-    executablePath: CHROMIUM, headless: true,
-    args: ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run", "--disable-background-networking",
-           "--disable-component-update", "--disable-sync"],
-    viewport: { width: 1280, height: 800 }, hasTouch: true,
-  });
+  browser = await launchTouchBrowser(browserKit, path.join(tmp, "chromium"));
   const page = browser.pages()[0] ?? await browser.newPage();
   const pageErrors = [];
   page.on("pageerror", (e) => pageErrors.push(String(e)));
@@ -659,7 +629,7 @@ try {
 } catch (e) {
   failed = true;
   console.error(`[e2e] FAIL: ${e?.stack ?? e}`);
-  for (const d of daemonDeaths) console.error(`[e2e] ${d}`);
+  for (const d of daemons.deaths) console.error(`[e2e] ${d}`);
   try { const p = browser?.pages()[0]; if (p) await p.screenshot({ path: path.join(artDir, "failure.png") }); } catch {}
 } finally {
   try { await browser?.close(); } catch {}

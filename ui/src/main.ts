@@ -27,7 +27,7 @@ import { FusedModalityPanel, fusedLayers, fusedRequest, layersNeedGl } from "./f
 import { caseRenderFields, defaultLayers, histogramBars, histogramPath, layerHistogramPath, MODALITY_LABEL, ModalityTabs, newestT1, planModalities, type ModalityLayer, type VolumeHistogram } from "./case_render";
 import { renderFailureNextStep, volumeRefusalNextStep } from "./next_step";
 import { LeaveGuard, unsavedMarksText } from "./leave_guard";
-import { MarksDrafts, restoredText, saveFailedText } from "./marks_draft";
+import { DaemonDraftSync, draftRequester, loadDaemonDraft, MarksDrafts, pickDraft, restoredText, saveFailedText, toDaemonBody, withoutSavedParts } from "./marks_draft";
 import { jobsPill, rendererPill, toolsPill, trackerPill } from "./status_pills";
 
 // ---- shared state ------------------------------------------------------------------------
@@ -289,6 +289,7 @@ const tabs: [string, string][] = [["#/cases", "Cases"], ["#/jobs", "Jobs"]];
 let leaveScreen: (() => void) | null = null;
 const leaveGuard = new LeaveGuard();
 const marksDrafts = new MarksDrafts(sessionStorage);
+const draftRequest = draftRequester(() => auth.token); // the daemon's copy of unsaved marks (7.47)
 const leaveAsk = h("div", { class: "banner warn", role: "alert", "data-testid": "leave-ask", hidden: true });
 banners.append(leaveAsk);
 
@@ -717,8 +718,11 @@ function casePhoto(id: number, body: HTMLElement, alive: Alive, got: (c: CaseRec
     }
     const photo = photos[0];
     const W = photo.intrinsics?.width ?? 640, H = photo.intrinsics?.height ?? 480;
+    // The daemon's copy of unsaved marks (marks_draft.ts), asked while the photo loads.
+    const daemonDraft = writer ? loadDaemonDraft(draftRequest, id, photo.id, session.user) : Promise.resolve(undefined);
     let blob: Blob;
     try { blob = await apiBlob(`/api/cases/${id}/photos/${photo.id}`); } catch (e) { showError(e); return; }
+    const kept = await daemonDraft;
     if (!alive()) return;
     const url = URL.createObjectURL(blob);
     onLeave(() => URL.revokeObjectURL(url));
@@ -739,15 +743,21 @@ function casePhoto(id: number, body: HTMLElement, alive: Alive, got: (c: CaseRec
     let mode: "landmarks" | "roi" = "landmarks";
     let sel = -1;
     let dirtyL = false, dirtyR = false;
-    // Unsaved edits kept in this tab (marks_draft.ts, 7.47): restored after a reload or a login
-    // screen, with a line saying they are not saved yet; kept again on every draw below.
+    // Unsaved edits kept in this tab and by the daemon (marks_draft.ts, 7.47): the newer of the
+    // two restored after a reload, a login screen or a restart of the browser, with a line saying
+    // they are not saved yet; kept again on every draw below (the daemon's 500 ms after the last).
     const lmRev = c.landmarks?.revision ?? null, roiRev = c.roi?.revision ?? null;
-    const draft = writer ? marksDrafts.load(id, photo.id, session.user) : null;
+    const picked = writer ? pickDraft(marksDrafts.load(id, photo.id, session.user), kept?.draft ?? null) : null;
+    const draft = picked ? withoutSavedParts(picked.draft, { landmarks: c.landmarks ? lms : null, roi: c.roi ? roi : null }) : null;
+    const sync = writer ? new DaemonDraftSync(id, draftRequest) : null;
+    sync?.assume(kept === undefined ? undefined : kept.body);
+    if (sync) onLeave(() => sync.dispose());
     if (draft?.landmarks) { lms = draft.landmarks.map((l) => ({ name: l.name, world_mm: l.world_mm, pixel: [l.pixel[0], l.pixel[1]] as Px })); dirtyL = true; }
     if (draft?.roi) { roi = draft.roi.map((p) => [p[0], p[1]] as Px); dirtyR = true; }
     const restored = h("p", { class: "banner warn restored", role: "status", "data-testid": "marks-restored", hidden: !draft },
-      draft ? restoredText(draft, { landmarks: lmRev, roi: roiRev }) : "");
-    if (alive()) leaveGuard.set(() => (alive() ? unsavedMarksText(dirtyL, dirtyR) : null), () => marksDrafts.drop(id));
+      draft ? restoredText(draft, { landmarks: lmRev, roi: roiRev }, picked?.source) : "");
+    if (draft) restored.dataset.source = picked?.source;
+    if (alive()) leaveGuard.set(() => (alive() ? unsavedMarksText(dirtyL, dirtyR) : null), () => { marksDrafts.drop(id); void sync?.discard(); });
     const info = h("p", { class: "muted", "data-testid": "photo-info" });
     const list = h("div", { class: "list compact", "data-testid": "landmark-list" });
     // The initial alignment of the pairs as they are on the screen (saved or not), asked after
@@ -817,7 +827,10 @@ function casePhoto(id: number, body: HTMLElement, alive: Alive, got: (c: CaseRec
       svg.dataset.mode = mode;
       saveL.disabled = !dirtyL;
       saveR.disabled = !dirtyR;
-      if (writer && alive()) marksDrafts.keep(id, photo.id, session.user, dirtyL ? { points: lms, fromRevision: lmRev } : null, dirtyR ? { points: roi, fromRevision: roiRev } : null);
+      if (writer && alive()) {
+        const kd = marksDrafts.keep(id, photo.id, session.user, dirtyL ? { points: lms, fromRevision: lmRev } : null, dirtyR ? { points: roi, fromRevision: roiRev } : null);
+        sync?.schedule(kd ? toDaemonBody(kd) : null);
+      }
       if (!dirtyL && !dirtyR) restored.hidden = true;
       delR.disabled = mode !== "roi" || sel < 0;
       const waiting = (pendingModelPoints.get(id) ?? []).length;
@@ -894,6 +907,7 @@ function casePhoto(id: number, body: HTMLElement, alive: Alive, got: (c: CaseRec
         dirtyL = false;
         showNotice(`Landmarks saved (revision ${r.revision}).`);
         draw();
+        void sync?.flush(); // the daemon's draft follows at once
         realign();
       } catch (e) { showError(new UserMessage(saveFailedText("landmarks", e, plainMessage))); draw(); }
     });
@@ -905,6 +919,7 @@ function casePhoto(id: number, body: HTMLElement, alive: Alive, got: (c: CaseRec
         dirtyR = false;
         showNotice(`ROI saved (revision ${r.revision}).`);
         draw();
+        void sync?.flush();
       } catch (e) { showError(new UserMessage(saveFailedText("ROI", e, plainMessage))); draw(); }
     });
     const ro = new ResizeObserver(() => draw());
