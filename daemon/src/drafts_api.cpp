@@ -66,17 +66,24 @@ json from_revision(const json& part, const std::string& what) {
     return r;
 }
 
+/// A part `{from_revision, points: [...]}` of the body (`w` names it): its points, checked for
+/// shape and count (`shape`: one point's, `unit`: what `max` counts).
+const json& part_points(const json& part, const std::string& w, const std::string& shape, std::size_t max, const char* unit) {
+    if (!part.is_object()) throw bad(w, "must be {from_revision, points: [" + shape + ", ...]}");
+    only_fields(part, {"from_revision", "points"}, w);
+    if (!part.contains("points") || !part["points"].is_array()) throw bad(w + " points", "must be an array of " + shape);
+    const json& a = part["points"];
+    if (a.size() > max) throw bad(w + " points", std::to_string(a.size()) + " " + unit + ", at most " + std::to_string(max));
+    return a;
+}
+
 /// The body kept: the parts checked and written again (nothing else of the request is kept).
 json checked_draft(const json& body, const PhotoSize& ph, const std::string& ctx) {
     json out{{"photo_id", ph.id}};
     if (body.contains("landmarks")) {
         const std::string w = ctx + " landmarks";
         const json& l = body["landmarks"];
-        if (!l.is_object()) throw bad(w, "must be {from_revision, points: [{label, world_mm, pixel}]}");
-        only_fields(l, {"from_revision", "points"}, w);
-        if (!l.contains("points") || !l["points"].is_array()) throw bad(w + " points", "must be an array of {label, world_mm: [x, y, z], pixel: [u, v]}");
-        const json& a = l["points"];
-        if (a.size() > kMaxLandmarks) throw bad(w + " points", std::to_string(a.size()) + " landmarks, at most " + std::to_string(kMaxLandmarks));
+        const json& a = part_points(l, w, "{label, world_mm: [x, y, z], pixel: [u, v]}", kMaxLandmarks, "landmarks");
         json pts = json::array();
         for (std::size_t i = 0; i < a.size(); ++i) {
             const std::string wi = w + " points[" + std::to_string(i) + "]";
@@ -100,11 +107,7 @@ json checked_draft(const json& body, const PhotoSize& ph, const std::string& ctx
     if (body.contains("roi")) {
         const std::string w = ctx + " roi";
         const json& r = body["roi"];
-        if (!r.is_object()) throw bad(w, "must be {from_revision, points: [[u, v], ...]}");
-        only_fields(r, {"from_revision", "points"}, w);
-        if (!r.contains("points") || !r["points"].is_array()) throw bad(w + " points", "must be an array of [u, v] (photo pixels)");
-        const json& a = r["points"];
-        if (a.size() > kMaxRoiPoints) throw bad(w + " points", std::to_string(a.size()) + " points, at most " + std::to_string(kMaxRoiPoints));
+        const json& a = part_points(r, w, "[u, v] (photo pixels)", kMaxRoiPoints, "points");
         json pts = json::array();
         for (std::size_t i = 0; i < a.size(); ++i) pts.push_back(pixel(a[i], ph, w + " points[" + std::to_string(i) + "]"));
         out["roi"] = {{"from_revision", from_revision(r, w)}, {"points", pts}};

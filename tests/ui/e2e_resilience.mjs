@@ -13,8 +13,12 @@
 //     the page reloaded: the edits are back with a line saying they are not saved; the daemon
 //     stopped: Save refused in words, the edits stay; the daemon back: Save stores them (the
 //     revisions and the moved pixel read over the API), nothing kept in the tab any more.
-//     Then as a logged-in technician: an edit, the session revoked, Save brings the login screen,
-//     logging in again gives the edit back, Save stores it.
+//     Then as a logged-in technician: an edit (kept by the daemon as hers), the session revoked,
+//     Save brings the login screen, logging in again gives the edit back, Save stores it.
+//     Then a restart of chromium itself (the kiosk unit starts it with a fresh profile): the
+//     kiosk's edit kept by the daemon (GET /api/cases/N/drafts/marks), the browser closed and a
+//     new one started on a new profile folder: the edit is back with the words saying the
+//     daemon kept it; Save stores it and the daemon's draft is gone.
 //  3. A registration job, the simulator stopped while it runs: the UI says the tracker stopped
 //     and that the registration goes on; no error; the job succeeds with evaluations after the stop.
 //  4. The plan from the Preoperative screen and its quick check (the NIfTI mask parsed, the 256^3
@@ -127,11 +131,11 @@ try {
 
   browser = await launchTouchBrowser(browserKit, path.join(tmp, "chromium"));
   await browser.addInitScript(LONGTASKS);
-  const page = browser.pages()[0] ?? await browser.newPage();
+  let page = browser.pages()[0] ?? await browser.newPage(); // a new one after the chromium restart in step 2
   const pageErrors = [];
   page.on("pageerror", (e) => pageErrors.push(String(e)));
   const shot = (name) => page.screenshot({ path: path.join(artDir, `${name}.png`) });
-  const cdp = await browser.newCDPSession(page);
+  let cdp = await browser.newCDPSession(page);
   const touchDrag = async (pts) => {
     await cdp.send("Input.dispatchTouchEvent", { type: "touchStart", touchPoints: [pts[0]] });
     for (const p of pts.slice(1)) { await cdp.send("Input.dispatchTouchEvent", { type: "touchMove", touchPoints: [p] }); await page.waitForTimeout(16); }
@@ -191,7 +195,8 @@ try {
   step(`recorded ${firstTwo.join(", ")} with the external simulator's pointer`);
   const tStop = Date.now();
   await stopSim();
-  const trackerLine = page.getByTestId("tracker-banner").filter({ hasText: "The tracker stopped streaming" });
+  const trackerLineOn = (p) => p.getByTestId("tracker-banner").filter({ hasText: "The tracker stopped streaming" });
+  let trackerLine = trackerLineOn(page); // again for the new page after the chromium restart (step 2)
   await trackerLine.waitFor({ timeout: 10000 });
   step(`simulator stopped: after ${((Date.now() - tStop) / 1000).toFixed(1)} s the screen says: ${await trackerLine.locator(".text").textContent()}`);
   await page.getByTestId("record-btn").tap();
@@ -240,6 +245,15 @@ try {
                                              return Math.hypot(Number(c.getAttribute("cx")) - p[0], Number(c.getAttribute("cy")) - p[1]) > 3; }, [i, m.lms[i]], { timeout: 5000 });
   };
   const stored = async () => (await api("GET", `/api/cases/${caseId}`)).j;
+  /** Save landmarks, then Save ROI, each answered with its new revision. */
+  const saveMarks = async (lmRevision, roiRevision) => {
+    await page.getByTestId("mode-landmarks").tap();
+    await page.getByTestId("save-landmarks").tap();
+    await page.getByTestId("notice-banner").filter({ hasText: `Landmarks saved (revision ${lmRevision})` }).waitFor({ timeout: 10000 });
+    await page.getByTestId("mode-roi").tap();
+    await page.getByTestId("save-roi").tap();
+    await page.getByTestId("notice-banner").filter({ hasText: `ROI saved (revision ${roiRevision})` }).waitFor({ timeout: 10000 });
+  };
   const s0 = await stored();
   await page.goto(`${base}/#/case/${caseId}/photo`);
   await marksShown(4);
@@ -254,7 +268,7 @@ try {
   expect(await page.evaluate((id) => sessionStorage.getItem(`cortexfuse.marks.${id}`) !== null, caseId), "the unsaved marks are kept in the tab");
   await page.reload();
   await marksShown(4);
-  const restoredLine = page.getByTestId("marks-restored");
+  let restoredLine = page.getByTestId("marks-restored");
   await restoredLine.filter({ hasText: "Restored your unsaved landmarks" }).filter({ hasText: "not saved yet" }).waitFor({ timeout: 5000 });
   const afterReload = await marksNow();
   expect(JSON.stringify(afterReload.lms) === JSON.stringify(edited.lms) && afterReload.roi === edited.roi,
@@ -277,11 +291,7 @@ try {
   ({ proc: daemon } = await daemons.start(configFile));
   await page.getByTestId("sb-link").filter({ hasText: "Live" }).waitFor({ timeout: 20000 });
   await notSaved.getByRole("button").tap();
-  await page.getByTestId("save-landmarks").tap();
-  await page.getByTestId("notice-banner").filter({ hasText: `Landmarks saved (revision ${s0.landmarks.revision + 1})` }).waitFor({ timeout: 10000 });
-  await page.getByTestId("mode-roi").tap();
-  await page.getByTestId("save-roi").tap();
-  await page.getByTestId("notice-banner").filter({ hasText: `ROI saved (revision ${s0.roi.revision + 1})` }).waitFor({ timeout: 10000 });
+  await saveMarks(s0.landmarks.revision + 1, s0.roi.revision + 1);
   const s1 = await stored();
   const px0 = s1.landmarks.points[0].pixel;
   expect(s1.landmarks.revision === s0.landmarks.revision + 1 && Math.hypot(px0[0] - edited.lms[0][0], px0[1] - edited.lms[0][1]) < 0.01,
@@ -309,6 +319,15 @@ try {
   await dragLandmark(1, -12, 8);
   const editedTina = await marksNow();
   const token = await page.evaluate(() => JSON.parse(sessionStorage.getItem("cortexfuse.session")).token);
+  // The daemon keeps the edit as tina's (500 ms after it), not the kiosk's.
+  const draftOf = async (tok) => (await api("GET", `/api/cases/${caseId}/drafts/marks`, undefined, tok)).j?.draft ?? null;
+  const near = (a, b) => Math.hypot(a[0] - b[0], a[1] - b[1]) < 0.01;
+  const waitDraft = async (tok, ok, what) => {
+    for (const until = Date.now() + 10000; Date.now() < until; await sleep(100)) { const d = await draftOf(tok); if (ok(d)) return d; }
+    throw new Error(`the daemon did not come to hold ${what}: ${JSON.stringify(await draftOf(tok)).slice(0, 300)}`);
+  };
+  const tinaDraft = await waitDraft(token, (d) => d?.landmarks && near(d.landmarks.points[1].pixel, editedTina.lms[1]), "tina's dragged landmark");
+  expect(tinaDraft.owner.startsWith("user:") && (await draftOf()) === null, `the draft is tina's (${tinaDraft.owner}), the kiosk has none`);
   expect((await api("POST", "/api/logout", undefined, token)).status < 300, "tina's session is revoked behind her back");
   await page.getByTestId("save-landmarks").tap();
   await page.getByTestId("login-note").filter({ hasText: "session has ended" }).waitFor({ timeout: 10000 });
@@ -328,6 +347,52 @@ try {
   step(`session ended with an unsaved edit: login screen, logged in again, edit restored and saved (revision ${s2.landmarks.revision})`);
   await page.getByTestId("auth-button").filter({ hasText: "Log out" }).tap();
   await page.getByTestId("sb-role").filter({ hasText: "Kiosk" }).waitFor({ timeout: 10000 });
+
+  // A restart of chromium itself: the kiosk's unsaved edit is kept by the daemon; the browser is
+  // closed and a new one starts with a fresh profile (as the kiosk unit does): it comes back.
+  await page.goto(`${base}/#/cases`);
+  await page.goto(`${base}/#/case/${caseId}/photo`);
+  await marksShown(4);
+  await page.getByTestId("mode-landmarks").tap();
+  await dragLandmark(2, 14, -9);
+  await page.getByTestId("mode-roi").tap();
+  const rp = await page.evaluate(() => [...document.querySelectorAll('[data-testid="photo-marks"] circle.roi-point')].map((c) => [Number(c.getAttribute("cx")), Number(c.getAttribute("cy"))]));
+  const e2 = rp.map((p, i) => [i, Math.hypot(...p.map((v, k) => v - rp[(i + 1) % rp.length][k]))]).sort((a, b) => b[1] - a[1])[0][0]; // the longest edge
+  const mid2 = await toScreen((rp[e2][0] + rp[(e2 + 1) % rp.length][0]) / 2, (rp[e2][1] + rp[(e2 + 1) % rp.length][1]) / 2);
+  await page.touchscreen.tap(mid2.x, mid2.y);
+  await page.waitForFunction((n) => Number(document.querySelector('[data-testid="photo-marks"]').dataset.roiPoints) === n + 1, rp.length, { timeout: 5000 });
+  const editedKiosk = await marksNow();
+  const kioskDraft = await waitDraft(undefined, (d) => d?.landmarks && d.roi && near(d.landmarks.points[2].pixel, editedKiosk.lms[2]) && d.roi.points.length === editedKiosk.roi,
+                                     "the kiosk's dragged landmark and added ROI point");
+  step(`the daemon keeps the kiosk's unsaved edit (owner ${kioskDraft.owner}, edited ${kioskDraft.saved_utc})`);
+  await browser.close();
+  browser = await launchTouchBrowser(browserKit, path.join(tmp, "chromium-after-restart"));
+  await browser.addInitScript(LONGTASKS);
+  page = browser.pages()[0] ?? await browser.newPage();
+  page.on("pageerror", (e) => pageErrors.push(String(e)));
+  cdp = await browser.newCDPSession(page);
+  restoredLine = page.getByTestId("marks-restored");
+  trackerLine = trackerLineOn(page);
+  await page.goto(`${base}/#/case/${caseId}/photo`);
+  await page.getByTestId("sb-link").filter({ hasText: "Live" }).waitFor({ timeout: 15000 });
+  await marksShown(4);
+  const fromDaemonLine = restoredLine.filter({ hasText: "kept by the cart's daemon" }).filter({ hasText: "not saved yet" });
+  await fromDaemonLine.waitFor({ timeout: 10000 });
+  expect(await restoredLine.getAttribute("data-source") === "daemon", "the restored edit came from the daemon");
+  const afterRestart = await marksNow();
+  expect(JSON.stringify(afterRestart.lms) === JSON.stringify(editedKiosk.lms), `the new browser shows the kiosk's edit (${JSON.stringify(afterRestart.lms)} vs ${JSON.stringify(editedKiosk.lms)})`);
+  await page.getByTestId("mode-roi").tap();
+  expect((await marksNow()).roi === editedKiosk.roi, "and the added ROI point");
+  step(`chromium restarted on a fresh profile: ${await restoredLine.textContent()}`);
+  await shot("resilience-03b-marks-from-daemon");
+  await saveMarks(s2.landmarks.revision + 1, s1.roi.revision + 1);
+  const s3 = await stored();
+  expect(near(s3.landmarks.points[2].pixel, editedKiosk.lms[2]) && s3.roi.roi.points.length === editedKiosk.roi,
+    `the edit made before chromium restarted is stored (${JSON.stringify(s3.landmarks.points[2].pixel)} vs ${JSON.stringify(editedKiosk.lms[2])})`);
+  await waitDraft(undefined, (d) => d === null, "no draft once saved");
+  const drops = (await api("GET", `/api/cases/${caseId}/audit`)).j.audit.filter((e) => e.action.startsWith("draft."));
+  expect(drops.some((e) => e.action === "draft.drop" && e.actor === "kiosk" && e.details.reason === "saved"), `the audit trail says the kiosk's draft was dropped when saved (${JSON.stringify(drops)})`);
+  step(`Save stored landmarks revision ${s3.landmarks.revision} and ROI revision ${s3.roi.revision}; the daemon's draft is gone (audit: ${drops.map((e) => `${e.action} ${e.actor} ${e.details.reason ?? ""}`.trim()).join(", ")})`);
 
   // ---- 3. A registration job while the tracker stops; long tasks meanwhile (7.45, 7.34) -------
   await page.goto(`${base}/#/jobs`);
