@@ -14,7 +14,7 @@ PACKAGES=(
   libgphoto2-dev libraw-dev libv4l-dev libudev-dev umockdev libumockdev-dev
   libegl-dev libepoxy-dev libegl-mesa0 libgl1-mesa-dri
   xvfb xauth jq curl
-  ccache
+  ccache lld
   libcivetweb-dev libcivetweb1 libcpp-httplib-dev libsystemd-dev systemd
   libsqlite3-dev sqlite3 libsodium-dev libzip-dev
   chromium
