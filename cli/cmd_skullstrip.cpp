@@ -33,6 +33,8 @@ void add_skullstrip(CLI::App& app) {
     cmd->add_flag("--no-surface-model{false}", p.surface_model, "thresholds and morphology alone, no BET surface");
     cmd->add_option("--brain-csf-margin-mm", p.brain_csf_margin_mm, "target brain: CSF layer kept over the cortex")->capture_default_str();
     cmd->add_option("--support-above-mm", p.support_above_mm, "surface interior is brain above its centre + this (>= 100: never)")->capture_default_str();
+    cmd->add_option("--support-gate-mm", p.support_gate_mm, "fine grids: surface interior only where tissue reaches it past no dark layer (0: off)")->capture_default_str();
+    cmd->add_option("--valley-snap-mm", p.valley_snap_mm, "coarse grids: move the mask's edge into the intensity valley (0: off)")->capture_default_str();
     cmd->add_option("--open-mm", p.open_mm, "final opening radius (removes thin leaks)")->capture_default_str();
     cmd->add_option("--envelope-margin-mm", p.envelope_margin_mm, "reach of tissue beyond the surface model")->capture_default_str();
     cmd->add_option("--erode-mm", p.erode_mm, "erosion radius separating brain from scalp")->capture_default_str();

@@ -11,6 +11,8 @@
 #include <algorithm>
 #include <array>
 #include <cmath>
+#include <limits>
+#include <queue>
 #include <numbers>
 #include <string>
 
@@ -171,6 +173,57 @@ MaskImage::Pointer pick_overlapping(const MaskImage* m, const MaskImage* seed) {
     return out;
 }
 
+// The voxels of `allowed` within `reach_mm` of `seed` by paths through `allowed` (26-neighbour
+// steps of their length in mm, Dijkstra): a geodesic reach. A layer of voxels not allowed in
+// between stops it; going round the edge of such a layer takes the length of the way round.
+std::vector<uint8_t> geodesic_reach(const Block& b, const uint8_t* seed, const std::vector<uint8_t>& allowed,
+                                    double reach_mm, std::vector<float>* dist_out = nullptr) {
+    const size_t n = b.count();
+    std::vector<float> dist(n, std::numeric_limits<float>::infinity());
+    using Item = std::pair<float, size_t>;
+    std::priority_queue<Item, std::vector<Item>, std::greater<>> queue;
+    for (size_t i = 0; i < n; ++i)
+        if (seed[i]) {
+            dist[i] = 0.f;
+            queue.push({0.f, i});
+        }
+    struct Step {
+        int di, dj, dk;
+        ptrdiff_t offset;
+        float mm;
+    };
+    std::vector<Step> steps;
+    const ptrdiff_t sj = b.dims[0], sk = ptrdiff_t(b.dims[0]) * b.dims[1];
+    for (int dk = -1; dk <= 1; ++dk)
+        for (int dj = -1; dj <= 1; ++dj)
+            for (int di = -1; di <= 1; ++di)
+                if (di || dj || dk)
+                    steps.push_back({di, dj, dk, di + dj * sj + dk * sk,
+                                     float(std::sqrt(std::pow(di * b.spacing_mm[0], 2) + std::pow(dj * b.spacing_mm[1], 2) +
+                                                     std::pow(dk * b.spacing_mm[2], 2)))});
+    const float limit = float(reach_mm);
+    while (!queue.empty()) {
+        const auto [d, li] = queue.top();
+        queue.pop();
+        if (d > dist[li]) continue;
+        const int i = int(li % size_t(b.dims[0])), j = int((li / size_t(b.dims[0])) % size_t(b.dims[1])),
+                  k = int(li / size_t(sk));
+        for (const Step& st : steps) {
+            const int a = i + st.di, c = j + st.dj, e = k + st.dk;
+            if (a < 0 || c < 0 || e < 0 || a >= b.dims[0] || c >= b.dims[1] || e >= b.dims[2]) continue;
+            const size_t nb = size_t(ptrdiff_t(li) + st.offset);
+            const float nd = d + st.mm;
+            if (!allowed[nb] || nd > limit || nd >= dist[nb]) continue;
+            dist[nb] = nd;
+            queue.push({nd, nb});
+        }
+    }
+    std::vector<uint8_t> reached(n);
+    for (size_t i = 0; i < n; ++i) reached[i] = dist[i] <= limit;
+    if (dist_out) *dist_out = std::move(dist);
+    return reached;
+}
+
 using FloatImage = itk::Image<float, 3>;
 
 FloatImage::Pointer new_float(const Block& b) { return make_image<FloatImage>(block_grid(b)); }
@@ -246,6 +299,7 @@ void check_config(const SkullStripConfig& c) {
     if (!in(c.bias_sigma_mm, 0.0, 100.0)) bad("bias_sigma_mm", c.bias_sigma_mm, "[0, 100]");
     if (!in(c.envelope_margin_mm, 0.0, 20.0)) bad("envelope_margin_mm", c.envelope_margin_mm, "[0, 20]");
     if (!in(c.open_mm, 0.0, 20.0)) bad("open_mm", c.open_mm, "[0, 20]");
+    if (!in(c.support_gate_mm, 0.0, 30.0)) bad("support_gate_mm", c.support_gate_mm, "[0, 30]");
     if (!in(c.final_dilate_mm, -10.0, 10.0)) bad("final_dilate_mm", c.final_dilate_mm, "[-10, 10]");
     if (!in(c.min_brain_ml, 0.0, 1e5) || !in(c.max_brain_ml, c.min_brain_ml, 1e6))
         bad("max_brain_ml", c.max_brain_ml, "[min_brain_ml, 1e6]");
@@ -438,13 +492,43 @@ void skull_strip_mask(const Grid& grid, const float* voxels, const uint8_t* enve
     // thin dark cortex at the vertex): the `support` voxels (surface interior above its centre)
     // are brain too.
     if (support) {
-        uint8_t* sp = seed->GetBufferPointer();
+        std::vector<uint8_t> sup(n, 0);
         for (int k = 0; k < box.dims[2]; ++k)
-            for (int j = 0; j < box.dims[1]; ++j) {
-                const uint8_t* src = support + full.linear(box.lo[0], box.lo[1] + j, box.lo[2] + k);
-                uint8_t* dst = sp + box.linear(0, j, k);
-                for (int i = 0; i < box.dims[0]; ++i) dst[i] |= src[i];
+            for (int j = 0; j < box.dims[1]; ++j)
+                std::copy_n(support + full.linear(box.lo[0], box.lo[1] + j, box.lo[2] + k), box.dims[0],
+                            sup.data() + box.linear(0, j, k));
+        // The surface model often ends beyond the brain: on seg3d it encloses 250 mL more than the
+        // reference, a grey layer under the inner table (dura, a thin CSF space greyed by partial
+        // volume) and the skull's fatty marrow. Taken as brain, those layers rendered as smooth
+        // opaque sheets over the cortex. So the support only counts where the brain tissue
+        // reaches it within support_gate_mm by a path through tissue-like voxels (above the CSF
+        // class mean, at least 1 mm from any voxel that dark, below WM + half the GM-WM step)
+        // that is at most 1 mm longer than the straight distance: a dark layer in between
+        // (the CSF over the cortex, the inner table) stops it, and going round a gap does not
+        // count. Dark cortex under the bias field (the support's purpose) is reached through
+        // the gyrus it belongs to.
+        if (cfg.support_gate_mm > 0) {
+            const double t_dark = cls[0], t_bright = 0.5 * (cls[1] + cls[2]);
+            auto dark = new_mask(box);
+            {
+                uint8_t* dp = dark->GetBufferPointer();
+                for (size_t i = 0; i < n; ++i) dp[i] = img[i] <= t_dark ? 1 : 0;
             }
+            const auto near_dark = morph(dark, box, 0.99 * max_sp);
+            const uint8_t* ndp = near_dark->GetBufferPointer();
+            const uint8_t* sd = seed->GetBufferPointer();
+            std::vector<uint8_t> passable(n, 0);
+            for (size_t i = 0; i < n; ++i)
+                passable[i] = sup[i] && img[i] > t_dark && img[i] < t_bright && (sd[i] || !ndp[i]);
+            std::vector<float> path_mm;
+            const auto reached = geodesic_reach(box, sd, passable, cfg.support_gate_mm, &path_mm);
+            const auto straight = signed_distance(seed);
+            const float* st = straight->GetBufferPointer();
+            for (size_t i = 0; i < n; ++i)
+                sup[i] = sup[i] && reached[i] && path_mm[i] <= std::max(0.f, st[i]) + 1.f;
+        }
+        uint8_t* sp = seed->GetBufferPointer();
+        for (size_t i = 0; i < n; ++i) sp[i] |= sup[i];
     }
 
     // 8. Closing takes in the sulcal CSF and smooths the outer surface: the brain envelope.
@@ -467,15 +551,35 @@ void skull_strip_mask(const Grid& grid, const float* voxels, const uint8_t* enve
         // the extra erosion thins the cortex the reconstruction returns and partial volume greys
         // the CSF layer, so the CSF reach grows by the extra erosion (2 mm is the default).
         const double reach_mm = cfg.csf_margin_mm + std::max(0.0, cfg.erode_mm - 2.0);
-        auto ic = morph(seed, box, reach_mm);
-        {
+        MaskImage::Pointer ic;
+        if (cfg.csf_geodesic) {
+            // Geodesic: the dark voxels reached within the reach through voxels no brighter than
+            // csf + 0.3 (gm - csf). The
+            // Euclidean band let the growth wrap round a bright layer (seg3d's marrow under a
+            // thin outer table) into the dark bone beyond it, and the closing then filled the
+            // layer in between: a bright sheet over the cortex.
+            const double t_pass = std::max(t_csf, cls[0] + 0.3 * (cls[1] - cls[0]));
+            const uint8_t* ep = env ? env->GetBufferPointer() : nullptr;
+            std::vector<uint8_t> passage(n, 0);
+            for (size_t i = 0; i < n; ++i) passage[i] = img[i] <= t_pass && (!ep || ep[i]);
+            const auto reached = geodesic_reach(box, seed->GetBufferPointer(), passage, reach_mm);
+            ic = new_mask(box);
             uint8_t* ip = ic->GetBufferPointer();
             const uint8_t* sp = seed->GetBufferPointer();
-            for (size_t i = 0; i < n; ++i) ip[i] = (sp[i] || (ip[i] && img[i] <= t_csf)) ? 1 : 0;
+            for (size_t i = 0; i < n; ++i) ip[i] = (sp[i] || (reached[i] && img[i] <= t_csf)) ? 1 : 0;
+            step("intracranial CSF", 0.7);
+            ic = pick_overlapping(ic, seed);
+        } else {
+            ic = morph(seed, box, reach_mm);
+            {
+                uint8_t* ip = ic->GetBufferPointer();
+                const uint8_t* sp = seed->GetBufferPointer();
+                for (size_t i = 0; i < n; ++i) ip[i] = (sp[i] || (ip[i] && img[i] <= t_csf)) ? 1 : 0;
+            }
+            if (env) and_into(ic, env);
+            step("intracranial CSF", 0.7);
+            ic = pick_overlapping(ic, seed);
         }
-        if (env) and_into(ic, env);
-        step("intracranial CSF", 0.7);
-        ic = pick_overlapping(ic, seed);
         step("closing", 0.75);
         seed = close(ic, box, cfg.close_mm);
     }
@@ -518,6 +622,64 @@ void skull_strip_mask(const Grid& grid, const float* voxels, const uint8_t* enve
             std::copy_n(sp + box.linear(0, j, k), box.dims[0],
                         mask.data() + full.linear(box.lo[0], box.lo[1] + j, box.lo[2] + k));
     step("done", 1.0);
+}
+
+void valley_snap(const Grid& grid, const float* voxels, std::vector<uint8_t>& mask, double cap, double max_mm) {
+    Block full;
+    full.dims = grid.dims;
+    full.spacing_mm = grid.spacing;
+    const size_t n = full.count();
+    if (mask.size() != n || max_mm <= 0) return;
+    // Lightly smoothed (sigma one voxel of the finest axis), so noise does not end the descent.
+    auto f = new_float(full);
+    std::copy_n(voxels, n, f->GetBufferPointer());
+    const double min_sp = std::min({grid.spacing[0], grid.spacing[1], grid.spacing[2]});
+    const auto sm = smooth(f, min_sp);
+    const float* sv = sm->GetBufferPointer();
+    const float top = float(cap);
+    const std::array<ptrdiff_t, 3> stride{1, ptrdiff_t(grid.dims[0]), ptrdiff_t(grid.dims[0]) * grid.dims[1]};
+    auto inside = [&](int i, int j, int k) {
+        return i > 0 && j > 0 && k > 0 && i + 1 < grid.dims[0] && j + 1 < grid.dims[1] && k + 1 < grid.dims[2];
+    };
+    std::vector<size_t> front, next;
+    for (int k = 0; k < grid.dims[2]; ++k)
+        for (int j = 0; j < grid.dims[1]; ++j)
+            for (int i = 0; i < grid.dims[0]; ++i) {
+                const size_t li = full.linear(i, j, k);
+                if (!mask[li] || !inside(i, j, k)) continue;
+                bool edge = false;
+                for (int a = 0; a < 3 && !edge; ++a)
+                    edge = !mask[li + size_t(stride[a])] || !mask[li - size_t(stride[a])];
+                if (edge) front.push_back(li);
+            }
+    // Steps of the finest axis; a step along a coarse axis (a thick slice) counts as one too: it
+    // takes in the next slice out where that slice is darker, which is what the ray caster's
+    // interpolation between slices needs.
+    const int steps = int(std::lround(max_mm / min_sp));
+    for (int it = 0; it < steps && !front.empty(); ++it) {
+        next.clear();
+        for (const size_t li : front) {
+            const int i = int(li % size_t(grid.dims[0])), j = int((li / size_t(grid.dims[0])) % size_t(grid.dims[1])),
+                      k = int(li / size_t(stride[2]));
+            const std::array<int, 3> at{i, j, k};
+            for (int a = 0; a < 3; ++a)
+                for (int sgn = -1; sgn <= 1; sgn += 2) {
+                    std::array<int, 3> nb3 = at;
+                    nb3[a] += sgn;
+                    if (!inside(nb3[0], nb3[1], nb3[2])) continue;
+                    const size_t nb = size_t(ptrdiff_t(li) + sgn * stride[a]);
+                    if (mask[nb] || !(sv[nb] < sv[li]) || sv[nb] > top) continue;
+                    mask[nb] = 1;
+                    next.push_back(nb);
+                }
+        }
+        front.swap(next);
+    }
+    // A ring of voxels taken round a pocket closes it: fill enclosed cavities again.
+    auto m = new_mask(full);
+    std::copy_n(mask.data(), n, m->GetBufferPointer());
+    const auto filled = fill_holes(m);
+    std::copy_n(filled->GetBufferPointer(), n, mask.data());
 }
 
 }  // namespace cf::itkb

@@ -23,6 +23,8 @@ struct SkullStripConfig {
     double final_dilate_mm = 0.0;
     double envelope_margin_mm = 3.0;
     double open_mm = 3.0;
+    double support_gate_mm = 0.0;
+    bool csf_geodesic = false;
     double min_brain_ml = 500.0;
     double max_brain_ml = 2500.0;
 };
@@ -49,5 +51,12 @@ using StepFn = std::function<void(const char* stage, double fraction)>;
 void skull_strip_mask(const Grid& grid, const float* voxels, const uint8_t* envelope, const uint8_t* support,
                       const SkullStripConfig& cfg,
                       const StepFn& step, std::vector<uint8_t>& mask, SkullStripReport& report);
+
+/// Moves the edge of `mask` (0/1 on `grid`) outwards downhill into the intensity valley outside it:
+/// a voxel next to the edge joins while it is darker than its neighbour inside (intensities
+/// lightly smoothed) and not brighter than `cap`, for at most `max_mm` (in steps of the finest
+/// axis); enclosed cavities are filled afterwards. For coarse grids, where the mask's edge
+/// otherwise lies in tissue-grey partial volume and the ray caster shows its voxel staircase.
+void valley_snap(const Grid& grid, const float* voxels, std::vector<uint8_t>& mask, double cap, double max_mm);
 
 }  // namespace cf::itkb

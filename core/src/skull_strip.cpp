@@ -57,7 +57,10 @@ LabelVolume skull_strip(const Volume& t1, const SkullStripParams& p, const Progr
     cfg.final_dilate_mm = p.final_dilate_mm;
     cfg.min_brain_ml = p.min_brain_ml;
     cfg.max_brain_ml = p.max_brain_ml;
+    cfg.support_gate_mm = p.support_gate_mm;
     itkb::check_config(cfg);
+    if (!(p.valley_snap_mm >= 0 && p.valley_snap_mm <= 20))
+        throw InputError("SkullStripParams.valley_snap_mm", "value out of range [0, 20]");
     if (!(p.brain_csf_margin_mm >= 0 && p.brain_csf_margin_mm <= 20))
         throw InputError("SkullStripParams.brain_csf_margin_mm", "value out of range [0, 20]");
     // Partial-volume bridges between brain and scalp are as thick as the thickest voxel side:
@@ -79,6 +82,15 @@ LabelVolume skull_strip(const Volume& t1, const SkullStripParams& p, const Progr
         resampled = resample(t1, isotropic_grid(t1.geom, iso_mm), 0.f);
     }
     const Volume& v = iso_mm > 0 ? resampled : t1;
+    // Which rules fit the grid (docs/skull-stripping.md, "Rendered"): on fine grids the dark
+    // layers between brain and skull are resolved and act as barriers (the support's gate, the
+    // geodesic CSF growth); on coarse ones partial volume greys them, the barriers would stop
+    // at cortex, and the mask's edge is moved into the intensity valley instead.
+    const bool fine_grid = v.geom.spacing_mm.maxCoeff() <= 1.3;
+    if (fine_grid)
+        cfg.csf_geodesic = cfg.support_gate_mm > 0;
+    else
+        cfg.support_gate_mm = 0;
 
     itkb::Grid grid;
     grid.dims = v.geom.dims;
@@ -133,6 +145,16 @@ LabelVolume skull_strip(const Volume& t1, const SkullStripParams& p, const Progr
                            work.voxels, rep);
 
     LabelVolume out = iso_mm > 0 ? resample_nearest(work, t1.geom) : std::move(work);
+    // Isotropic coarse scans only: on thick slices (the DICOM series, 4.8 mm) the descent wandered
+    // through the noisy grey of the 1 mm in-plane grid (1396 -> 1527 mL, a ragged edge) and the
+    // staircase between slices stayed; that one needs the renderer (docs/skull-stripping.md).
+    if (!fine_grid && iso_mm == 0 && p.valley_snap_mm > 0) {
+        step("valley", 0.98);
+        itkb::Grid og;
+        og.dims = t1.geom.dims;
+        for (int a = 0; a < 3; ++a) og.spacing[a] = t1.geom.spacing_mm[a];
+        itkb::valley_snap(og, t1.voxels.data(), out.voxels, rep.csf + 0.5 * (rep.gm - rep.csf), p.valley_snap_mm);
+    }
     if (info) {
         info->p02 = rep.p02;
         info->p98 = rep.p98;

@@ -87,6 +87,185 @@ TEST(SkullStrip, RealHeadAt2mm) {
     EXPECT_LT(info.brain_ml, 0.7 * info.head_ml);
 }
 
+namespace {
+
+// The voxel axis closest to world axis w (LPS) and whether increasing index goes towards +w.
+std::pair<int, bool> axis_towards(const VolumeGeometry& g, int w) {
+    int best = 0;
+    for (int a = 1; a < 3; ++a)
+        if (std::abs(g.direction(w, a)) > std::abs(g.direction(w, best))) best = a;
+    return {best, g.direction(w, best) > 0};
+}
+
+// Voxel offsets within a ball of radius r_mm.
+std::vector<std::array<int, 3>> ball(const VolumeGeometry& g, double r_mm) {
+    std::vector<std::array<int, 3>> out;
+    std::array<int, 3> n{};
+    for (int a = 0; a < 3; ++a) n[a] = int(std::ceil(r_mm / g.spacing_mm[a]));
+    for (int k = -n[2]; k <= n[2]; ++k)
+        for (int j = -n[1]; j <= n[1]; ++j)
+            for (int i = -n[0]; i <= n[0]; ++i)
+                if (std::pow(i * g.spacing_mm[0], 2) + std::pow(j * g.spacing_mm[1], 2) + std::pow(k * g.spacing_mm[2], 2) <=
+                    r_mm * r_mm)
+                    out.push_back({i, j, k});
+    return out;
+}
+
+// What the ray caster would show through a mask, measured on the upper half of a head:
+// `outside_ml`, the mask's volume farther than `far_mm` outside the reference mask; and for
+// orthographic rays along the voxel axes from the left, the right and the top, the share of
+// first opaque voxels (above 0.3 of the in-mask 99.5th percentile: the cortex_t1 preset's
+// opacity ramp) that lie farther than `far_mm` outside the reference: extra-axial layers, not
+// cortex, on the picture.
+struct ConvexityCheck {
+    double outside_ml = 0;
+    std::array<double, 3> first_hit_outside{0, 0, 0};  // left, right, top
+};
+
+ConvexityCheck convexity_check(const Volume& v, const LabelVolume& mask, const LabelVolume& ref, double far_mm) {
+    const VolumeGeometry& g = v.geom;
+    const auto [lr, lr_up] = axis_towards(g, 0);  // LPS +x: patient left
+    const auto [si, si_up] = axis_towards(g, 2);  // LPS +z: superior
+    // Upper half: above the reference's centre along the superior axis.
+    double centre = 0;
+    size_t n_ref = 0;
+    std::vector<float> inside;
+    for (int k = 0; k < g.dims[2]; ++k)
+        for (int j = 0; j < g.dims[1]; ++j)
+            for (int i = 0; i < g.dims[0]; ++i) {
+                const size_t li = g.linear(i, j, k);
+                const std::array<int, 3> x{i, j, k};
+                if (ref.voxels[li]) {
+                    centre += x[si];
+                    ++n_ref;
+                }
+                if (mask.voxels[li] && v.voxels[li] != 0.f) inside.push_back(v.voxels[li]);
+            }
+    centre /= double(std::max<size_t>(1, n_ref));
+    const size_t q = size_t(0.995 * double(inside.size() - 1));
+    std::nth_element(inside.begin(), inside.begin() + long(q), inside.end());
+    const float opaque = 0.3f * inside[q];
+    auto upper = [&](const std::array<int, 3>& x) { return si_up ? x[si] >= centre : x[si] <= centre; };
+    const auto offsets = ball(g, far_mm);
+    auto far_outside = [&](const std::array<int, 3>& x) {
+        if (ref.voxels[g.linear(x[0], x[1], x[2])]) return false;
+        for (const auto& o : offsets) {
+            const int a = x[0] + o[0], b = x[1] + o[1], c = x[2] + o[2];
+            if (a < 0 || b < 0 || c < 0 || a >= g.dims[0] || b >= g.dims[1] || c >= g.dims[2]) continue;
+            if (ref.voxels[g.linear(a, b, c)]) return false;
+        }
+        return true;
+    };
+    ConvexityCheck out;
+    size_t n_far = 0;
+    for (int k = 0; k < g.dims[2]; ++k)
+        for (int j = 0; j < g.dims[1]; ++j)
+            for (int i = 0; i < g.dims[0]; ++i)
+                if (mask.voxels[g.linear(i, j, k)] && upper({i, j, k}) && far_outside({i, j, k})) ++n_far;
+    out.outside_ml = double(n_far) * g.spacing_mm.prod() / 1000.0;
+    // Rays: from the left and the right along the left-right axis, from the top down.
+    const std::array<std::pair<int, bool>, 3> views{{{lr, !lr_up}, {lr, lr_up}, {si, !si_up}}};
+    for (int view = 0; view < 3; ++view) {
+        const int ax = views[size_t(view)].first;
+        const bool from_high = !views[size_t(view)].second;  // rays start at the high-index end
+        const int u = (ax + 1) % 3, w = (ax + 2) % 3;
+        size_t hits = 0, far = 0;
+        for (int b = 0; b < g.dims[w]; ++b)
+            for (int a = 0; a < g.dims[u]; ++a)
+                for (int s = 0; s < g.dims[ax]; ++s) {
+                    std::array<int, 3> x{};
+                    x[ax] = from_high ? g.dims[ax] - 1 - s : s;
+                    x[u] = a;
+                    x[w] = b;
+                    const size_t li = g.linear(x[0], x[1], x[2]);
+                    if (!mask.voxels[li] || v.voxels[li] <= opaque) continue;
+                    if (view == 2 || upper(x)) {  // side views: the upper half of the picture
+                        ++hits;
+                        far += far_outside(x);
+                    }
+                    break;
+                }
+        out.first_hit_outside[size_t(view)] = double(far) / double(std::max<size_t>(1, hits));
+    }
+    return out;
+}
+
+}  // namespace
+
+TEST(SkullStrip, Seg3dConvexityShowsCortexNotExtraAxialLayers) {
+    // seg3d (a clinical T1 with subdural grid electrodes): between its cortex and the skull lie
+    // grey layers (dura, a CSF space greyed by partial volume) and a thin skull with bright fatty
+    // marrow. The surface model ended on the outer table, its interior was taken as brain over
+    // the convexity, and the CSF growth wrapped round the marrow into the dark bone beyond:
+    // rendered through the mask, smooth sheets covered the cortex (docs/registration.md, "Why
+    // seg3d case 0000 fails"). Measured before the support's gate and the geodesic CSF growth:
+    // 32.7 mL of the upper half more than 3 mm outside Seg3D's mask; first hits from the left,
+    // right and top 39 / 35 / 25 % outside it. After: 7.4 mL; 7.5 / 13.8 / 2.7 %.
+    if (kSanitized) GTEST_SKIP() << "a 1 mm head takes minutes under the sanitizers";
+    const Volume v = load_volume(fs::path(CF_TEST_DATA_DIR) / "t1_head_seg3d.nii.gz");
+    const LabelVolume ref = load_mask(fs::path(CF_TEST_DATA_DIR) / "brainmask_seg3d_intracranial.nii.gz");
+    SkullStripInfo info;
+    const LabelVolume mask = skull_strip(v, {}, nullptr, &info);
+    ASSERT_TRUE(mask.geom.same_grid(ref.geom));
+    const double d = dice(mask, ref);
+    RecordProperty("dice_seg3d", std::to_string(d));
+    EXPECT_GE(d, 0.92) << "brain " << info.brain_ml << " mL";  // the issue's target; 0.928 measured
+    const ConvexityCheck c = convexity_check(v, mask, ref, 3.0);
+    RecordProperty("seg3d_outside_ml", std::to_string(c.outside_ml));
+    EXPECT_LT(c.outside_ml, 15.0) << "extra-axial tissue taken over the convexity";
+    const char* names[3] = {"left", "right", "top"};
+    for (int view = 0; view < 3; ++view)
+        EXPECT_LT(c.first_hit_outside[size_t(view)], 0.2)
+            << "seen from the " << names[view] << ", " << 100 * c.first_hit_outside[size_t(view)]
+            << " % of the upper convexity's first opaque voxels lie more than 3 mm outside the reference";
+}
+
+TEST(SkullStrip, CoarseGridMaskEdgeLiesInTheIntensityValley) {
+    // On a 2 mm grid partial volume greys the CSF over the cortex; a mask edge in those grey
+    // voxels is opaque to the ray caster, which then shows the mask's voxel staircase instead of
+    // the cortex (the MNI152 2 mm head). The edge is moved downhill into the valley between brain
+    // and skull: measured on this head, upper-half edge voxels above 0.3 of the in-mask 99.5th
+    // percentile 58 % before, 15 % after (MNI152 2 mm: 71 -> 7 %).
+    const Head& h = head_2mm();
+    const LabelVolume mask = skull_strip(h.t1, {});
+    const VolumeGeometry& g = mask.geom;
+    const auto [si, si_up] = axis_towards(g, 2);
+    std::vector<float> inside;
+    double centre = 0;
+    size_t n = 0;
+    for (int k = 0; k < g.dims[2]; ++k)
+        for (int j = 0; j < g.dims[1]; ++j)
+            for (int i = 0; i < g.dims[0]; ++i) {
+                const size_t li = g.linear(i, j, k);
+                if (!mask.voxels[li]) continue;
+                centre += std::array<int, 3>{i, j, k}[si];
+                ++n;
+                if (h.t1.voxels[li] != 0.f) inside.push_back(h.t1.voxels[li]);
+            }
+    ASSERT_GT(n, 0u);
+    centre /= double(n);
+    const size_t q = size_t(0.995 * double(inside.size() - 1));
+    std::nth_element(inside.begin(), inside.begin() + long(q), inside.end());
+    const float opaque = 0.3f * inside[q];
+    size_t edge = 0, opaque_edge = 0;
+    for (int k = 1; k + 1 < g.dims[2]; ++k)
+        for (int j = 1; j + 1 < g.dims[1]; ++j)
+            for (int i = 1; i + 1 < g.dims[0]; ++i) {
+                const size_t li = g.linear(i, j, k);
+                const std::array<int, 3> x{i, j, k};
+                if (!mask.voxels[li] || (si_up ? x[si] < centre : x[si] > centre)) continue;
+                const bool on_edge = !mask.voxels[g.linear(i - 1, j, k)] || !mask.voxels[g.linear(i + 1, j, k)] ||
+                                     !mask.voxels[g.linear(i, j - 1, k)] || !mask.voxels[g.linear(i, j + 1, k)] ||
+                                     !mask.voxels[g.linear(i, j, k - 1)] || !mask.voxels[g.linear(i, j, k + 1)];
+                if (!on_edge) continue;
+                ++edge;
+                opaque_edge += h.t1.voxels[li] > opaque;
+            }
+    const double share = double(opaque_edge) / double(std::max<size_t>(1, edge));
+    RecordProperty("opaque_edge_2mm", std::to_string(share));
+    EXPECT_LT(share, 0.3) << edge << " upper edge voxels, " << opaque_edge << " opaque";
+}
+
 TEST(SkullStrip, ThickSliceDicomSeriesStaysOffTheScalp) {
     // The real sagittal T1 series (1 x 1 x 4.8 mm, neck and face in the field of view): at BET's
     // published f = 0.5 the surface model passed the partial-volume-grey skull and ended on the
@@ -223,4 +402,10 @@ TEST(SkullStrip, ParametersOutOfRangeRefused) {
     p = {};
     p.bet_fraction = 2.0;
     EXPECT_NE(error_of(head_2mm().t1, p).find("bet_fraction"), std::string::npos);
+    p = {};
+    p.support_gate_mm = 40.0;
+    EXPECT_NE(error_of(head_2mm().t1, p).find("support_gate_mm"), std::string::npos);
+    p = {};
+    p.valley_snap_mm = -1.0;
+    EXPECT_NE(error_of(head_2mm().t1, p).find("valley_snap_mm"), std::string::npos);
 }

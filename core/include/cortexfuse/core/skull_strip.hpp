@@ -25,6 +25,16 @@ struct SkullStripParams {
     /// The surface model's interior counts as brain above its centre + this height (the convexity,
     /// where one threshold misses dark cortex); >= 100: never. [-50, 100]
     double support_above_mm = 0.0;
+    /// Fine grids (voxels <= 1.3 mm): the surface model's interior only counts as brain where the
+    /// brain tissue reaches it within this distance by a path through tissue-like voxels that a
+    /// dark layer (CSF, inner table) does not cut; the extra-axial CSF is then grown geodesically
+    /// too. Stops the grey and bright layers beyond the CSF (dura, marrow) from entering the
+    /// mask as sheets over the cortex. 0 = neither (the former rules). [0, 30]
+    double support_gate_mm = 10.0;
+    /// Coarse grids (voxels > 1.3 mm): the mask's edge moves outwards downhill into the intensity
+    /// valley between brain and skull by up to this distance, so the ray caster does not show the
+    /// mask's voxel staircase. 0 = off. [0, 20]
+    double valley_snap_mm = 4.0;
     /// Tissue and CSF are only taken within this distance of the BET surface. [0, 20]
     double envelope_margin_mm = 3.0;
     /// Background level = p2 + background_frac * (p98 - p2) of all voxels (as FSL BET). [0.01, 0.5]
