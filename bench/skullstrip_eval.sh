@@ -10,6 +10,9 @@
 #   t1_head_chris.nii.gz, mni152_fsl_t1_2mm_head.nii.gz, dicom/mr_head_t1_sag_siemens/.
 # Environment (defaults): BUILD_DIR=build  OUT_DIR=skullstrip_eval  ROUNDS=3
 #   EXTRA_ARGS= (more `cortexfuse skullstrip` options, e.g. "--bet-fraction 0.4")
+#   RENDER=1: also ray-cast each head through its mask (cortex_t1 and surface_white, views left,
+#   right, superior, anterior) into OUT_DIR/<head>_<target>_rendered.png (a 4x2 montage when
+#   ImageMagick's `montage` is installed, else the eight PNGs): what `register` shows.
 set -euo pipefail
 root=$(cd "$(dirname "$0")/.." && pwd)
 heads=${1:?usage: bench/skullstrip_eval.sh HEADS_DIR}
@@ -18,6 +21,7 @@ BUILD_DIR=${BUILD_DIR:-build}
 [[ $BUILD_DIR = /* ]] || BUILD_DIR=$root/$BUILD_DIR
 OUT_DIR=${OUT_DIR:-skullstrip_eval}
 ROUNDS=${ROUNDS:-3}
+RENDER=${RENDER:-1}
 EXTRA_ARGS=${EXTRA_ARGS:-}
 exe=$BUILD_DIR/cli/cortexfuse
 [ -x "$exe" ] || { echo "skullstrip_eval: $exe missing (build first)" >&2; exit 2; }
@@ -65,6 +69,21 @@ for c in "${cases[@]}"; do
               peak_rss_mb: ($rss_kb / 1024),
               check_png: $png}' <<<"$out")
     done
+    if [ "$RENDER" = 1 ] && [ -z "$(jq -r '.error // empty' <<<"$row")" ]; then
+      shots=()
+      for tf in cortex_t1 surface_white; do
+        for view in left right superior anterior; do
+          shot=$OUT_DIR/${name}_${target}_${tf}_${view}.png
+          "$exe" render "$heads/$vol" --mask "$OUT_DIR/${name}_${target}.nii.gz" --tf "$tf" --view "$view" \
+            --size 500x400 --out "$shot" >/dev/null
+          shots+=("$shot")
+        done
+      done
+      if command -v montage >/dev/null; then
+        montage "${shots[@]}" -tile 4x2 -geometry +2+2 "$OUT_DIR/${name}_${target}_rendered.png" && rm -f "${shots[@]}"
+        row=$(jq -c --arg r "$OUT_DIR/${name}_${target}_rendered.png" '. + {rendered_png: $r}' <<<"$row")
+      fi
+    fi
     if [ ${#times[@]} -gt 0 ]; then
       med=$(printf '%s\n' "${times[@]}" | sort -g | awk '{a[NR]=$1} END {print (NR % 2) ? a[(NR+1)/2] : (a[NR/2] + a[NR/2+1]) / 2}')
       row=$(jq -c --argjson med "$med" --argjson n "${#times[@]}" '. + {seconds_median: $med, rounds: $n}' <<<"$row")
@@ -78,10 +97,10 @@ rm -f "$OUT_DIR/.rss" "$OUT_DIR/.err"
 printf '%s\n' "${rows[@]}" | jq -s --arg load "$(cut -d' ' -f1-3 /proc/loadavg)" --argjson cores "$(nproc)" \
   '{machine: {cores: $cores, loadavg: $load}, rows: .}' >"$OUT_DIR/skullstrip_eval.json"
 
-echo "| head | target | Dice vs reference | mL | s (median of $ROUNDS) | peak RSS MB | check image |"
-echo "|---|---|---|---|---|---|---|"
+echo "| head | target | Dice vs reference | mL | s (median of $ROUNDS) | peak RSS MB | check image | rendered |"
+echo "|---|---|---|---|---|---|---|---|"
 printf '%s\n' "${rows[@]}" | jq -r '
-  if .error then "| \(.head) | \(.target) | error: \(.error) | | | | |"
-  else "| \(.head) | \(.target) | \(if .dice then "\(.dice * 10000 | round / 10000) (\(.reference_target) ref)" else "-" end) | \(.brain_ml | round) | \(.seconds_median * 10 | round / 10) | \(.peak_rss_mb | round) | \(.check_png) |" end'
+  if .error then "| \(.head) | \(.target) | error: \(.error) | | | | | |"
+  else "| \(.head) | \(.target) | \(if .dice then "\(.dice * 10000 | round / 10000) (\(.reference_target) ref)" else "-" end) | \(.brain_ml | round) | \(.seconds_median * 10 | round / 10) | \(.peak_rss_mb | round) | \(.check_png) | \(.rendered_png // "-") |" end'
 echo
 echo "machine: $(nproc) cores, load average $(cut -d' ' -f1-3 /proc/loadavg); JSON: $OUT_DIR/skullstrip_eval.json"
