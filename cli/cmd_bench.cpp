@@ -27,6 +27,7 @@ void add_bench(CLI::App& app) {
     struct Opts {
         std::string volume = cf::bundled_data_dir(CF_DATA_DIR).string() + "/t1_head_mne_ecog.nii.gz";
         std::string mask, size = "375x250", tf = "skin", renderer = "cpu", save_frame, case_dir, params_file, reference_file;
+        std::string register_renderer = "cpu", reference_renderer;
         std::string phantom_mask = cf::bundled_data_dir(CF_DATA_DIR).string() + "/brainmask_mne_ecog_binary.nii.gz";
         int frames = 30, warmup = 5, threads = 0, bins = 64, repeat = 20, cases = 4;
         double sample_mm = 1.0;
@@ -110,6 +111,11 @@ void add_bench(CLI::App& app) {
     reg->add_option("--reference", o->reference_file,
                     "A reference schedule (JSON) registered on the same cases in the same run, case by case in turn");
     reg->add_flag("--reference-seed", o->reference_seed, "The seed's schedule as the reference");
+    reg->add_option("--renderer", o->register_renderer, "Ray caster for the similarity: cpu, gl (EGL/OpenGL) or auto")
+        ->capture_default_str();
+    reg->add_option("--reference-renderer", o->reference_renderer,
+                    "Also register the same schedule with this renderer, case by case in turn (e.g. --renderer gl "
+                    "--reference-renderer cpu)");
     reg->add_flag("--json", o->json, "One line of JSON (default: indented)");
     reg->callback([o] {
         run_guarded("bench register", [&] {
@@ -121,6 +127,8 @@ void add_bench(CLI::App& app) {
             c.seed = o->seed;
             c.threads = o->threads;
             c.keep = o->keep;
+            c.renderer = o->register_renderer;
+            c.reference_renderer = o->reference_renderer;
             if (!o->params_file.empty())
                 c.params = registration_params_from_json(read_json_file(o->params_file), o->params_file);
             if (!o->reference_file.empty()) {

@@ -365,6 +365,8 @@ json run_nmi_bench(const NmiBenchConfig& c, const Progress* progress) {
 }
 
 json run_register_bench(const RegisterBenchConfig& c, const Progress* progress) {
+    check_renderer_name(c.renderer);  // before any phantom is made
+    if (!c.reference_renderer.empty()) check_renderer_name(c.reference_renderer);
     const int threads = resolve_threads(c.threads);
     // Limits every TBB loop of this run (ray caster, phantom generator) to `threads`.
     tbb::global_control limit(tbb::global_control::max_allowed_parallelism, size_t(threads));
@@ -407,9 +409,15 @@ json run_register_bench(const RegisterBenchConfig& c, const Progress* progress) 
         json per_case = json::array();
         double prepare_s = 0;
     };
-    std::vector<Variant> variants(c.reference ? 2 : 1);
+    const bool second = c.reference || !c.reference_renderer.empty();
+    std::vector<Variant> variants(second ? 2 : 1);
     variants[0].params = c.params ? *c.params : RegistrationParams::defaults();
-    if (c.reference) variants[1].params = *c.reference;
+    variants[0].params.renderer_factory = renderer_factory(parse_renderer_kind(c.renderer));
+    if (second) {
+        variants[1].params = c.reference ? *c.reference : variants[0].params;
+        const std::string rr = c.reference_renderer.empty() ? c.renderer : c.reference_renderer;
+        variants[1].params.renderer_factory = renderer_factory(parse_renderer_kind(rr));
+    }
     for (size_t i = 0; i < dirs.size(); ++i) {
         if (progress) progress->check();
         LoadedCase lc = load_case(dirs[i]);
@@ -448,6 +456,8 @@ json run_register_bench(const RegisterBenchConfig& c, const Progress* progress) 
     if (progress) (*progress)("done", 1.0);
     auto figures = [&](const Variant& V) {
         json j = {{"prepare_s", V.prepare_s}};
+        // The renderer the engine actually made (auto may have fallen back to the CPU).
+        if (!V.engines.empty()) j["renderer"] = V.engines.begin()->second->renderer().name();
         merge(j, stats_json(stats(V.seconds), "seconds"));
         j["evaluations_median"] = stats(V.evals).median;
         j["ms_per_evaluation_median"] = stats([&] {
@@ -467,9 +477,9 @@ json run_register_bench(const RegisterBenchConfig& c, const Progress* progress) 
               {"threads", threads},
               {"generate_s", generate_s}};
     merge(j, figures(variants[0]));
-    if (c.reference) {
+    if (second) {
         json r = figures(variants[1]);
-        r["name"] = c.reference_name;
+        r["name"] = c.reference ? c.reference_name : "renderer " + c.reference_renderer;
         j["reference"] = r;
         j["reference_over_params_seconds"] = r["seconds_median"].get<double>() / std::max(1e-9, j["seconds_median"].get<double>());
     }

@@ -13,6 +13,7 @@
 #include "cortexfuse/core/error.hpp"
 #include "cortexfuse/core/pose.hpp"
 #include "cortexfuse/core/registration.hpp"
+#include "cortexfuse/render/gl_renderer.hpp"
 
 namespace fs = std::filesystem;
 using nlohmann::json;
@@ -220,6 +221,39 @@ TEST(BenchRegister, TimesAScheduleBesideAReferenceOnTheSameCases) {
     EXPECT_LE(j["evaluations_median"].get<double>(), 2 * 10 + 2);
     EXPECT_GT(j["reference"]["evaluations_median"].get<double>(), j["evaluations_median"].get<double>());
     EXPECT_GT(j["reference_over_params_seconds"].get<double>(), 0.0);
+}
+
+TEST(BenchRegister, TheGlRegistrationBesideTheCpuOneOnTheSameCases) {
+    // Issue 3's registration time: one schedule with the GL ray caster and again with the CPU's,
+    // case by case in turn; each side names the renderer its engine made.
+    cf::RegistrationParams p = cf::RegistrationParams::defaults();
+    p.starts.resize(1);
+    p.estimate_light = false;
+    p.search_keep = 0;
+    p.search_stages = {{"search", 4, 2, 2, 64, 8, 0.01, 0.01}};
+    p.final_stages = {{"final", 2, 1, 1, 96, 8, 0.01, 0.01}};
+    p.refine_stages.clear();
+    cf::bench::RegisterBenchConfig c;
+    c.volume = fs::path(CF_DATA_DIR) / "t1_head_mne_ecog.nii.gz";
+    c.mask = fs::path(CF_DATA_DIR) / "brainmask_mne_ecog_binary.nii.gz";
+    c.cases = 1;
+    c.params = p;
+    c.renderer = "gl";
+    c.reference_renderer = "cpu";
+    json j;
+    try {
+        j = cf::bench::run_register_bench(c);
+    } catch (const cf::GlError& e) {
+        GTEST_SKIP() << "no OpenGL context here: " << e.what();
+    }
+    EXPECT_EQ(j["renderer"], "gl");
+    ASSERT_TRUE(j.contains("reference"));
+    EXPECT_EQ(j["reference"]["renderer"], "cpu");
+    EXPECT_EQ(j["reference"]["name"], "renderer cpu");
+    // The same pictures (issue 3's golden tests), so the same schedule lands close by.
+    EXPECT_NEAR(j["mre_mm_median"].get<double>(), j["reference"]["mre_mm_median"].get<double>(), 0.5);
+    c.reference_renderer = "vulkan";
+    EXPECT_THROW(cf::bench::run_register_bench(c), cf::InputError);
 }
 
 TEST(BenchCli, NmiJsonParses) {

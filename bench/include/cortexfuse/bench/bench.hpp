@@ -112,11 +112,17 @@ struct RegisterBenchConfig {
     std::optional<RegistrationParams> params;
     std::optional<RegistrationParams> reference;
     std::string reference_name = "reference";
+    /// The similarity's ray caster for `params`: cpu, gl or auto (issue 3: the GL registration
+    /// time). `reference_renderer`, when set and no reference schedule is given, registers the
+    /// same schedule a second time with that renderer, case by case in turn: GL beside CPU.
+    std::string renderer = "cpu";
+    std::string reference_renderer;
 };
 /// Registers each case once from its landmarks and times it.
 /// JSON: seconds_median/_p90, evaluations_median, per-case seconds, evaluations and MRE
 /// (when the case has truth), prepare_s, peak_rss_mb; with a reference, the same figures for it
-/// under "reference" and reference_over_params_seconds (the ratio of the medians).
+/// under "reference" and reference_over_params_seconds (the ratio of the medians); each
+/// schedule's renderer as its engine names it ("renderer", "reference.renderer").
 nlohmann::json run_register_bench(const RegisterBenchConfig& c, const Progress* progress = nullptr);
 
 }  // namespace cf::bench
