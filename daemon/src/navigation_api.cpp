@@ -166,8 +166,10 @@ cf::DigitisedPoint digitise(const TrackerModule& tracker, const std::string& lab
                             const std::string& reference, double window_s, double max_spread_mm, const Eigen::Vector3d& tip) {
     if (!tracker.enabled()) throw conflict("tracker", "disabled (tracker.enabled is false): nothing to digitise with");
     const auto frames = tracker.recent_frames(std::int64_t(window_s * 1e9));
-    if (int(frames.size()) < kMinFrames) {
-        const auto st = tracker.status();
+    const auto st = tracker.status();
+    // Frames of the window from just before a drop are real, but the screen already says the
+    // tracker stopped: a point recorded then would contradict what the surgeon is told.
+    if (int(frames.size()) < kMinFrames || st.state != cf::tracker::TrackerStatus::State::streaming) {
         throw conflict("tracker", std::to_string(frames.size()) + " frame(s) in the last " + std::to_string(window_s).substr(0, 4) +
                                       " s (state " + cf::tracker::state_name(st.state) + ", " + std::to_string(int(st.frame_rate_hz + 0.5)) +
                                       " Hz): the tracker is not streaming; try again when it is");
