@@ -78,10 +78,15 @@ namespace {
 
 class CpuRenderer final : public Renderer {
 public:
-    CpuRenderer(const Volume& v, const TransferFunction& tf, const LabelVolume* mask) : geom_(v.geom) {
-        const auto range = robust_range(v, mask);
+    CpuRenderer(const Volume& volume, const TransferFunction& tf, const LabelVolume* mask) {
+        const auto range = robust_range(volume, mask);  // of the volume as given
         lo_ = range[0];
         hi_ = range[1];
+        // A mask on thick slices: drawn from the finer copy (renderer.hpp), as the GL one does.
+        const auto copy = masked_render_copy(volume, mask, range);
+        const Volume& v = copy ? *copy : volume;
+        if (copy) mask = nullptr;  // faded into the copy
+        geom_ = v.geom;
         // Volume range for the table: values above the robust max saturate, which is what a
         // normalized transfer function wants anyway.
         const auto& d = geom_.dims;

@@ -152,13 +152,18 @@ public:
     const char* name() const override { return "gl"; }
     const GlInfo& info() const { return ctx_.info(); }
 
-    int add_layer(const Volume& v, const TransferFunction& tf, const LabelVolume* mask,
+    int add_layer(const Volume& volume, const TransferFunction& tf, const LabelVolume* mask,
                   const LayerSettings& settings) override {
         if (int(layers_.size()) >= kMaxLayers)
             throw InputError("fusion scene", "at most " + std::to_string(kMaxLayers) + " layers");
-        if (mask && !mask->geom.same_grid(v.geom)) throw InputError("mask", "is not on the volume's grid");
-        if (v.voxels.size() != v.geom.voxel_count() || v.geom.voxel_count() == 0)
+        if (mask && !mask->geom.same_grid(volume.geom)) throw InputError("mask", "is not on the volume's grid");
+        if (volume.voxels.size() != volume.geom.voxel_count() || volume.geom.voxel_count() == 0)
             throw InputError("volume", "empty or inconsistent with its dimensions");
+        const auto range = robust_range(volume, mask);  // of the volume as given
+        // A mask on thick slices: drawn from the finer copy (renderer.hpp), as the CPU one does.
+        const auto copy = masked_render_copy(volume, mask, range);
+        const Volume& v = copy ? *copy : volume;
+        if (copy) mask = nullptr;  // faded into the copy
         ctx_.make_current();
         // Said before anything is allocated: glTexStorage3D would only say GL_INVALID_VALUE.
         const auto& dims = v.geom.dims;
@@ -169,7 +174,6 @@ public:
         auto L = std::make_unique<Layer>();
         L->geom = v.geom;
         L->settings = settings;
-        const auto range = robust_range(v, mask);
         L->lo = range[0];
         L->hi = range[1];
         // Quantised exactly like raycast_cpu.cpp, so both sample the same numbers.

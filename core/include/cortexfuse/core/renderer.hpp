@@ -7,6 +7,7 @@
 #include <Eigen/Core>
 #include <cstdint>
 #include <memory>
+#include <optional>
 #include <span>
 #include <vector>
 
@@ -65,8 +66,29 @@ public:
 
 /// The CPU ray caster. `volume` is copied (quantised); `mask`, if given (same grid), hides
 /// everything outside it (skull-stripped rendering). Both are borrowed only during the call.
+/// A mask on thick slices is drawn through masked_render_copy().
 std::unique_ptr<Renderer> make_cpu_renderer(const Volume& volume, const TransferFunction& tf,
                                             const LabelVolume* mask = nullptr);
+
+/// What the ray casters (CPU and GLSL) draw when a mask hides part of a volume whose grid is
+/// markedly anisotropic (an axis more than 1.5x the finest: thick slices). Elsewhere they zero
+/// the voxels outside the mask; on 4.8 mm slices that made the mask's edge between two slices a
+/// cliff (terraces over the brain whatever the mask), and where the mask cuts tissue its voxel
+/// steps show at any spacing. The copy: the same origin and direction cosines (world
+/// coordinates unchanged), each thick axis cut into ceil(spacing / max(finest, 1 mm)) steps; the
+/// native voxels stay knots of the copy, so its intensities (linear between them) sample
+/// trilinearly as the native grid does. The mask is carried by its signed distance phi,
+/// interpolated linearly (per slice when one axis is thick: shape-based interpolation) and
+/// smoothed a little (sigma 1.5 mm in-plane, half a slice across), and each voxel of the copy
+/// is faded towards range[0] by a ramp of phi four copy voxels wide (clamped to `range` first),
+/// so the clip surface runs smoothly between slices and voxels. For the 256 x 256 x 35 DICOM
+/// series: 256 x 256 x 171 voxels (45 MiB of float while a renderer is made; the CPU's
+/// quantised copy 22 MiB), about 0.5-1 s more to make a renderer.
+/// The renderers quantise the copy with `range` and no mask. At most kMaxRenderCopyVoxels
+/// (fewer cuts beyond). nullopt, and no work, without a mask, on a grid within 1.5x, or for a
+/// mask all in or all out: the volume is drawn as given.
+constexpr size_t kMaxRenderCopyVoxels = size_t(48) << 20;
+std::optional<Volume> masked_render_copy(const Volume& volume, const LabelVolume* mask, const std::array<double, 2>& range);
 
 /// Per block of `block`^3 voxels of the x-fastest grid `q` (dims), the least and greatest value
 /// over the block and a one-voxel apron (the reach of trilinear interpolation); `n_blocks` gets
