@@ -16,6 +16,7 @@ constexpr double kAnisotropy = 1.5;  // an axis thicker than this times the fine
 constexpr double kFinestMm = 1.0;    // thick axes are cut to this, or to the finest spacing if coarser
 constexpr double kSmoothSigmaMm = 1.5;  // of the mask's signed distance along the fine axes
 constexpr double kRampVoxels = 4;       // width of the fade at the mask's edge, in voxels of the copy
+constexpr double kMarginMm = 10;        // around the mask's box: > half the ramp + the smoothing's reach
 
 /// Where each voxel of the copy falls on the native axis: knot index and fraction.
 struct AxisMap {
@@ -135,6 +136,35 @@ std::optional<Volume> masked_render_copy(const Volume& v, const LabelVolume* mas
     if (f == std::array<int, 3>{1, 1, 1}) return std::nullopt;
     const std::array<int, 3> dd = copy_dims();
 
+    // The work is done on the mask's bounding box and a margin (about half the DICOM series'
+    // grid): beyond the margin the copy is range[0], as the fade would make it.
+    std::array<int, 3> b0{d[0], d[1], d[2]}, b1{-1, -1, -1};
+    for (int k = 0; k < d[2]; ++k)
+        for (int j = 0; j < d[1]; ++j) {
+            const uint8_t* row = mask->voxels.data() + v.geom.linear(0, j, k);
+            for (int i = 0; i < d[0]; ++i)
+                if (row[i]) {
+                    b0 = {std::min(b0[0], i), std::min(b0[1], j), std::min(b0[2], k)};
+                    b1 = {std::max(b1[0], i), std::max(b1[1], j), std::max(b1[2], k)};
+                }
+        }
+    std::array<int, 3> bd{};
+    for (int a = 0; a < 3; ++a) {
+        const int margin = std::max(3, int(std::ceil(kMarginMm / s[a])));
+        b0[size_t(a)] = std::max(0, b0[size_t(a)] - margin);
+        b1[size_t(a)] = std::min(d[size_t(a)] - 1, b1[size_t(a)] + margin);
+        bd[size_t(a)] = b1[size_t(a)] - b0[size_t(a)] + 1;
+    }
+    const size_t nb = count(bd);
+    std::vector<float> box_voxels(nb);
+    std::vector<uint8_t> box_mask(nb);
+    for (int k = 0; k < bd[2]; ++k)
+        for (int j = 0; j < bd[1]; ++j) {
+            const size_t from = v.geom.linear(b0[0], b0[1] + j, b0[2] + k), to = (size_t(k) * size_t(bd[1]) + size_t(j)) * size_t(bd[0]);
+            std::copy_n(v.voxels.data() + from, bd[0], box_voxels.data() + to);
+            std::copy_n(mask->voxels.data() + from, bd[0], box_mask.data() + to);
+        }
+
     // The mask's signed distance on the native grid. With one thick axis, per slice: that axis
     // is stretched so far that every nearest voxel lies in the same slice (the distances are the
     // slices' own 2D maps) and interpolating them between slices moves each edge linearly from
@@ -154,14 +184,14 @@ std::optional<Volume> masked_render_copy(const Volume& v, const LabelVolume* mas
     if (n_thick == 1) {
         double in_plane2 = 0;
         for (int a = 0; a < 3; ++a)
-            if (a != thick) in_plane2 += std::pow(d[size_t(a)] * s[a], 2);
+            if (a != thick) in_plane2 += std::pow(bd[size_t(a)] * s[a], 2);
         stretch = 4 * std::sqrt(in_plane2) + s[thick];  // > 4x any distance within a slice
         dist_spacing[size_t(thick)] = stretch;
     }
     std::vector<double> phi_mm;
-    itkb::midpoint_signed_distance(d, dist_spacing, mask->voxels.data(), phi_mm);
-    std::vector<float> phi(n);
-    for (size_t i = 0; i < n; ++i) {
+    itkb::midpoint_signed_distance(bd, dist_spacing, box_mask.data(), phi_mm);
+    std::vector<float> phi(nb);
+    for (size_t i = 0; i < nb; ++i) {
         double x = phi_mm[i];
         if (n_thick == 1 && std::abs(x) >= 0.5 * stretch) {
             const double k = std::round(std::abs(x) / stretch);
@@ -176,21 +206,23 @@ std::optional<Volume> masked_render_copy(const Volume& v, const LabelVolume* mas
     // steps of 1-2 voxels in-plane on the DICOM series), and where the mask cuts tissue the
     // ray caster shades every step.
     for (int a = 0; a < 3; ++a)
-        if (f[size_t(a)] == 1) smooth_axis(phi, d, a, kSmoothSigmaMm / s[a]);
+        if (f[size_t(a)] == 1) smooth_axis(phi, bd, a, kSmoothSigmaMm / s[a]);
 
-    const std::array<AxisMap, 3> m{axis_map(d[0], f[0]), axis_map(d[1], f[1]), axis_map(d[2], f[2])};
+    // The box's part of the copy (its first voxel is a native knot, so the same samples).
+    const std::array<AxisMap, 3> m{axis_map(bd[0], f[0]), axis_map(bd[1], f[1]), axis_map(bd[2], f[2])};
+    const std::array<int, 3> bdd{(bd[0] - 1) * f[0] + 1, (bd[1] - 1) * f[1] + 1, (bd[2] - 1) * f[2] + 1};
     Volume c;
     c.geom = v.geom;
     c.geom.dims = dd;
     for (int a = 0; a < 3; ++a) c.geom.spacing_mm[a] = s[a] / f[a];
-    c.voxels.resize(count(dd));
     const float lo = float(range[0]), hi = float(range[1]);
-    upsample(v.voxels.data(), d, m, dd, [&](size_t i, float x) { c.voxels[i] = std::clamp(x, lo, hi); });
-    std::vector<float> fine_phi(c.voxels.size());
-    upsample(phi.data(), d, m, dd, [&](size_t i, float x) { fine_phi[i] = x; });
+    std::vector<float> fine(count(bdd));
+    upsample(box_voxels.data(), bd, m, bdd, [&](size_t i, float x) { fine[i] = std::clamp(x, lo, hi); });
+    std::vector<float> fine_phi(fine.size());
+    upsample(phi.data(), bd, m, bdd, [&](size_t i, float x) { fine_phi[i] = x; });
     // Linear between slices, the clip surface creases at every slice (shaded as a line each
     // 4.8 mm); a Gaussian along the thick axis (sigma half a slice) rounds the creases.
-    if (n_thick == 1) smooth_axis(fine_phi, dd, thick, 0.5 * f[size_t(thick)]);
+    if (n_thick == 1) smooth_axis(fine_phi, bdd, thick, 0.5 * f[size_t(thick)]);
     // Faded over kRampVoxels voxels of the copy (3.8 mm on the DICOM series): trilinear sampling
     // then follows the ramp (linear in phi) instead of stepping at each voxel as a 0/1 cut does,
     // and a ray sampling each 1 mm meets it over several samples (over two, the composited
@@ -199,23 +231,29 @@ std::optional<Volume> masked_render_copy(const Volume& v, const LabelVolume* mas
     // per slice thickness, and a ramp in phi alone would be thinner than a voxel there (the copy's
     // lattice then showed as ripples over every cap of the outline).
     const double ramp_mm = kRampVoxels * c.geom.spacing_mm.minCoeff();
-    const size_t sy = size_t(dd[0]), sz = size_t(dd[0]) * size_t(dd[1]);
+    const size_t sy = size_t(bdd[0]), sz = size_t(bdd[0]) * size_t(bdd[1]);
     const Eigen::Vector3d inv_2h = (2 * c.geom.spacing_mm).cwiseInverse();
-    tbb::parallel_for(0, dd[2], [&](int k) {
-        for (int j = 0; j < dd[1]; ++j)
-            for (int i = 0; i < dd[0]; ++i) {
+    tbb::parallel_for(0, bdd[2], [&](int k) {
+        for (int j = 0; j < bdd[1]; ++j)
+            for (int i = 0; i < bdd[0]; ++i) {
                 const size_t at = size_t(k) * sz + size_t(j) * sy + size_t(i);
                 const float x = fine_phi[at];
                 auto diff = [&](int idx, int len, size_t stride) {
                     const size_t a = idx > 0 ? at - stride : at, b = idx < len - 1 ? at + stride : at;
                     return double(fine_phi[b] - fine_phi[a]) * ((idx > 0 && idx < len - 1) ? 1.0 : 2.0);
                 };
-                const Eigen::Vector3d g(diff(i, dd[0], 1) * inv_2h[0], diff(j, dd[1], sy) * inv_2h[1], diff(k, dd[2], sz) * inv_2h[2]);
+                const Eigen::Vector3d g(diff(i, bdd[0], 1) * inv_2h[0], diff(j, bdd[1], sy) * inv_2h[1], diff(k, bdd[2], sz) * inv_2h[2]);
                 const double dist_mm = x / std::max(g.norm(), 0.2);
                 const float w = float(std::clamp(0.5 - dist_mm / ramp_mm, 0.0, 1.0));
-                c.voxels[at] = lo + (c.voxels[at] - lo) * w;
+                fine[at] = lo + (fine[at] - lo) * w;
             }
     });
+    c.voxels.assign(count(dd), lo);
+    const std::array<int, 3> o{b0[0] * f[0], b0[1] * f[1], b0[2] * f[2]};
+    for (int k = 0; k < bdd[2]; ++k)
+        for (int j = 0; j < bdd[1]; ++j)
+            std::copy_n(fine.data() + (size_t(k) * size_t(bdd[1]) + size_t(j)) * size_t(bdd[0]), bdd[0],
+                        c.voxels.data() + c.geom.linear(o[0], o[1] + j, o[2] + k));
     return c;
 }
 

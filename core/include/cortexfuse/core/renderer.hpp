@@ -83,7 +83,7 @@ std::unique_ptr<Renderer> make_cpu_renderer(const Volume& volume, const Transfer
 /// is faded towards range[0] by a ramp of phi four copy voxels wide (clamped to `range` first),
 /// so the clip surface runs smoothly between slices and voxels. For the 256 x 256 x 35 DICOM
 /// series: 256 x 256 x 171 voxels (45 MiB of float while a renderer is made; the CPU's
-/// quantised copy 22 MiB), about 0.5-1 s more to make a renderer.
+/// quantised copy 22 MiB); making the renderer takes longer (figures: docs/skull-stripping.md).
 /// The renderers quantise the copy with `range` and no mask. At most kMaxRenderCopyVoxels
 /// (fewer cuts beyond). nullopt, and no work, without a mask, on a grid within 1.5x, or for a
 /// mask all in or all out: the volume is drawn as given.
