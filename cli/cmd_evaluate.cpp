@@ -249,6 +249,13 @@ void add_evaluate(CLI::App& app) {
                     reg.tre.push_back(e1.tre_mm);
                     reg.ipe_px.push_back(e1.ipe_px);
                     reg.ipe_mm.push_back(e1.ipe_mm);
+                    // Where each stage left the pose: which stage gains or loses.
+                    json stages = json::array();
+                    for (const auto& st : r.stages) {
+                        const PoseErrors es = pose_errors(truth, K, st.T_camera_from_world, mesh);
+                        stages.push_back({{"name", st.name}, {"start", st.start}, {"cost", st.best_cost}, {"mre_mm", es.mre_mm},
+                                          {"offset_camera_mm", {es.offset_camera_mm.x(), es.offset_camera_mm.y(), es.offset_camera_mm.z()}}});
+                    }
                     reg.seconds.push_back(r.seconds);
                     reg.evals.push_back(r.evaluations);
                     runs.push_back({{"case", dir.filename().string()}, {"trial", t}, {"misalignment", x},
@@ -259,7 +266,7 @@ void add_evaluate(CLI::App& app) {
                                     {"landmarks_only", {{"mre_mm", e_lm.mre_mm}, {"tre_mm", e_lm.tre_mm},
                                                         {"offset_camera_mm", {e_lm.offset_camera_mm.x(), e_lm.offset_camera_mm.y(), e_lm.offset_camera_mm.z()}}}},
                                     {"surface_offset_mm", {{"median", offset.median_mm}, {"mean", offset.mean_mm}, {"mad", offset.mad_mm}, {"pixels", offset.pixels}}},
-                                    {"seconds", r.seconds}, {"evaluations", r.evaluations}, {"similarity", r.similarity},
+                                    {"seconds", r.seconds}, {"evaluations", r.evaluations}, {"similarity", r.similarity}, {"stages", stages},
                                     {"truth_score", {{"similarity", s_truth.similarity}, {"cost", s_truth.cost}}},
                                     {"final_score", {{"similarity", s_final.similarity}, {"cost", s_final.cost}}}});
                     ++done;

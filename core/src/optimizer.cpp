@@ -3,6 +3,7 @@
 #include <nlopt.hpp>
 
 #include <limits>
+#include <stdexcept>
 
 namespace cf {
 
@@ -36,7 +37,12 @@ double trampoline(const std::vector<double>& x, std::vector<double>&, void* data
 
 SimplexResult nelder_mead(const std::function<double(const std::vector<double>&)>& f, const std::vector<double>& x0,
                           const SimplexOptions& o, const CancelToken* cancel) {
-    nlopt::opt opt(nlopt::LN_NELDERMEAD, unsigned(x0.size()));
+    const nlopt::algorithm algo = o.algorithm == "sbplx"    ? nlopt::LN_SBPLX
+                                  : o.algorithm == "bobyqa" ? nlopt::LN_BOBYQA
+                                                            : nlopt::LN_NELDERMEAD;
+    if (o.algorithm != "neldermead" && o.algorithm != "sbplx" && o.algorithm != "bobyqa")
+        throw std::invalid_argument("optimizer: unknown algorithm " + o.algorithm);
+    nlopt::opt opt(algo, unsigned(x0.size()));
     Ctx ctx{&f, cancel, 0, false, &opt, x0, std::numeric_limits<double>::infinity()};
     opt.set_min_objective(trampoline, &ctx);
     if (!o.initial_step.empty()) opt.set_initial_step(o.initial_step);

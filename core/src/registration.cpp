@@ -146,6 +146,10 @@ void RegistrationParams::validate(const std::string& ctx) const {
     if (light_rounds < 1 || light_rounds > 5) bad("light_rounds must be 1..5");
     if (light_width_px != 0 && (light_width_px < 32 || light_width_px > 4000)) bad("light_width_px must be 0 or 32..4000");
     if (search_keep < 0) bad("search_keep must be >= 0");
+    if (!(depth_scan_mm >= 0 && depth_scan_mm <= 50) || depth_scan_steps < 1 || depth_scan_steps > 20)
+        bad("depth_scan_mm must be 0..50 (0: off) and depth_scan_steps 1..20");
+    if (optimizer != "neldermead" && optimizer != "sbplx" && optimizer != "bobyqa")
+        bad("optimizer must be neldermead, sbplx or bobyqa");
     if (binning != "hard" && binning != "linear") bad("binning must be \"hard\" or \"linear\"");
     if (starts.empty()) bad("at least one start");
     if (search_stages.empty() && final_stages.empty()) bad("at least one stage");
@@ -157,6 +161,10 @@ void RegistrationParams::validate(const std::string& ctx) const {
             if (s.render_width_px < 32 || s.render_width_px > 4000) bad("stage " + s.name + ": render_width_px must be 32..4000");
             if (s.max_evaluations < 1 || s.max_evaluations > 100000) bad("stage " + s.name + ": max_evaluations out of range");
             if (!(s.xtol_mm > 0) || !(s.xtol_deg > 0)) bad("stage " + s.name + ": tolerances must be > 0");
+            if (!(s.step_depth_mm >= 0 && s.step_depth_mm <= 100) || !(s.step_tilt_deg >= 0 && s.step_tilt_deg <= 45))
+                bad("stage " + s.name + ": step_depth_mm must be 0..100 and step_tilt_deg 0..45 (0: the stage's steps)");
+            if (s.sample_distance_mm != 0 && !(s.sample_distance_mm >= 0.1 && s.sample_distance_mm <= 5))
+                bad("stage " + s.name + ": sample_distance_mm must be 0 (the registration's) or 0.1..5");
         }
     for (const auto& s : starts)
         for (double v : s)
@@ -173,7 +181,8 @@ namespace {
 json stage_json(const StageParams& s) {
     return {{"name", s.name}, {"fwhm_mm", s.fwhm_mm}, {"step_mm", s.step_mm}, {"step_deg", s.step_deg},
             {"render_width_px", s.render_width_px}, {"max_evaluations", s.max_evaluations},
-            {"xtol_mm", s.xtol_mm}, {"xtol_deg", s.xtol_deg}};
+            {"xtol_mm", s.xtol_mm}, {"xtol_deg", s.xtol_deg}, {"step_depth_mm", s.step_depth_mm},
+            {"step_tilt_deg", s.step_tilt_deg}, {"sample_distance_mm", s.sample_distance_mm}};
 }
 StageParams stage_from(const json& j) {
     StageParams s;
@@ -185,6 +194,9 @@ StageParams stage_from(const json& j) {
     s.max_evaluations = j.value("max_evaluations", s.max_evaluations);
     s.xtol_mm = j.value("xtol_mm", s.xtol_mm);
     s.xtol_deg = j.value("xtol_deg", s.xtol_deg);
+    s.step_depth_mm = j.value("step_depth_mm", s.step_depth_mm);
+    s.step_tilt_deg = j.value("step_tilt_deg", s.step_tilt_deg);
+    s.sample_distance_mm = j.value("sample_distance_mm", s.sample_distance_mm);
     return s;
 }
 }  // namespace
@@ -202,6 +214,11 @@ json to_json(const RegistrationParams& p) {
     j["landmark_prior_tolerance_px"] = p.landmark_prior_tolerance_px;
     j["landmark_prior_expected"] = p.landmark_prior_expected;
     j["sample_distance_mm"] = p.sample_distance_mm;
+    j["depth_along_pivot_ray"] = p.depth_along_pivot_ray;
+    j["optimizer"] = p.optimizer;
+    j["depth_scan_mm"] = p.depth_scan_mm;
+    j["light_after_screen"] = p.light_after_screen;
+    j["depth_scan_steps"] = p.depth_scan_steps;
     j["surface_only"] = p.surface_only;
     j["roi_margin_fraction"] = p.roi_margin_fraction;
     j["binning"] = p.binning;
@@ -243,6 +260,11 @@ RegistrationParams registration_params_from_json(const json& j, const std::strin
         p.landmark_prior_tolerance_px = j.value("landmark_prior_tolerance_px", p.landmark_prior_tolerance_px);
         p.landmark_prior_expected = j.value("landmark_prior_expected", p.landmark_prior_expected);
         p.sample_distance_mm = j.value("sample_distance_mm", p.sample_distance_mm);
+        p.depth_along_pivot_ray = j.value("depth_along_pivot_ray", p.depth_along_pivot_ray);
+        p.optimizer = j.value("optimizer", p.optimizer);
+        p.depth_scan_mm = j.value("depth_scan_mm", p.depth_scan_mm);
+        p.light_after_screen = j.value("light_after_screen", p.light_after_screen);
+        p.depth_scan_steps = j.value("depth_scan_steps", p.depth_scan_steps);
         p.surface_only = j.value("surface_only", p.surface_only);
         p.roi_margin_fraction = j.value("roi_margin_fraction", p.roi_margin_fraction);
         p.binning = j.value("binning", p.binning);
@@ -530,6 +552,7 @@ public:
 
     double similarity(const Pose& T, const StageParams& st) {
         Level& L = level(st.render_width_px);
+        ropt_.sample_distance_mm = st.sample_distance_mm > 0 ? st.sample_distance_mm : p_.sample_distance_mm;
         if (L.blurred_fwhm_mm != st.fwhm_mm) {
             filter(L.photo.channel, L.photo_blur, st.fwhm_mm, L);
             L.blurred_fwhm_mm = st.fwhm_mm;
@@ -724,6 +747,24 @@ RegistrationResult Registration::run(const PhotoInput& in, const Progress* progr
     scorer.set_depth(pivot_cam.z());
     std::vector<PoseParams> starts = params_.starts;
     for (const Pose& A : alternatives) starts.push_back(params_between(T0, A, pivot_cam));
+    // The optimiser's translation axes (columns, camera frame): the camera's, or depth along the
+    // pivot's line of sight (see RegistrationParams::depth_along_pivot_ray).
+    Eigen::Matrix3d B = Eigen::Matrix3d::Identity();
+    if (params_.depth_along_pivot_ray) {
+        const Eigen::Vector3d e3 = pivot_cam.normalized();
+        const Eigen::Vector3d e1 = (Eigen::Vector3d::UnitX() - e3 * e3.x()).normalized();
+        B.col(0) = e1;
+        B.col(1) = e3.cross(e1);
+        B.col(2) = e3;
+    }
+    auto to_opt = [&](const PoseParams& x) {
+        const Eigen::Vector3d t = B.transpose() * Eigen::Vector3d(x[3], x[4], x[5]);
+        return std::vector<double>{x[0], x[1], x[2], t.x(), t.y(), t.z()};
+    };
+    auto from_opt = [&](const std::vector<double>& u) {
+        const Eigen::Vector3d t = B * Eigen::Vector3d(u[3], u[4], u[5]);
+        return PoseParams{u[0], u[1], u[2], t.x(), t.y(), t.z()};
+    };
 
     int total_budget = 0;
     const int screened = params_.search_keep > 0 ? std::min(params_.search_keep, int(starts.size())) : int(starts.size());
@@ -752,9 +793,8 @@ RegistrationResult Registration::run(const PhotoInput& in, const Progress* progr
         rep.params = st;
         const int stage_index = int(res.stages.size());
         double best_seen_sim = -1e300, best_seen_cost = 1e300;
-        auto f = [&](const std::vector<double>& xv) {
-            PoseParams x;
-            std::copy(xv.begin(), xv.end(), x.begin());
+        auto f = [&](const std::vector<double>& u) {
+            const PoseParams x = from_opt(u);
             double s = 0;
             const double c = evaluate(x, st, s);
             if (c < best_seen_cost) {
@@ -770,20 +810,22 @@ RegistrationResult Registration::run(const PhotoInput& in, const Progress* progr
             return c;
         };
         SimplexOptions so;
-        so.initial_step = {st.step_deg, st.step_deg, st.step_deg, st.step_mm, st.step_mm, st.step_mm};
+        const double tilt = st.step_tilt_deg > 0 ? st.step_tilt_deg : st.step_deg;
+        const double depth = st.step_depth_mm > 0 ? st.step_depth_mm : st.step_mm;
+        so.initial_step = {tilt, tilt, st.step_deg, st.step_mm, st.step_mm, depth};
         so.xtol_abs = {st.xtol_deg, st.xtol_deg, st.xtol_deg, st.xtol_mm, st.xtol_mm, st.xtol_mm};
         so.max_evaluations = st.max_evaluations;
         so.ftol_abs = 1e-6;
-        const SimplexResult r = nelder_mead(f, std::vector<double>(x0.begin(), x0.end()), so, cancel);
+        so.algorithm = params_.optimizer;
+        const SimplexResult r = nelder_mead(f, to_opt(x0), so, cancel);
         rep.best_cost = r.f;
         rep.best_similarity = best_seen_sim;
         rep.evaluations = r.evaluations;
         rep.seconds = seconds_since(t0);
+        rep.T_camera_from_world = apply_params(T0, pivot_cam, from_opt(r.x));
         res.stages.push_back(rep);
         best_sim = best_seen_sim;
-        PoseParams out;
-        std::copy(r.x.begin(), r.x.end(), out.begin());
-        return std::make_pair(out, r.f);
+        return std::make_pair(from_opt(r.x), r.f);
     };
 
     // Similarity at the start, for the record.
@@ -794,45 +836,6 @@ RegistrationResult Registration::run(const PhotoInput& in, const Progress* progr
         res.initial_similarity = s0;
     }
 
-    // Subspace searches: each start runs the multi-scale stages on its own.
-    struct Candidate {
-        PoseParams x;
-        double cost;
-    };
-    std::vector<Candidate> candidates;
-    auto by_cost = [](const Candidate& a, const Candidate& b) { return a.cost < b.cost; };
-    std::vector<int> start_of;  // candidate -> start index, for the stage reports
-    for (size_t s = 0; s < starts.size(); ++s) {
-        PoseParams x = starts[s];
-        double cost = 0, best_sim = 0;
-        if (!params_.search_stages.empty()) std::tie(x, cost) = run_stage(params_.search_stages.front(), int(s), x, best_sim);
-        candidates.push_back({x, cost});
-        start_of.push_back(int(s));
-    }
-    if (params_.search_stages.size() > 1) {
-        if (params_.search_keep > 0 && size_t(params_.search_keep) < candidates.size()) {
-            std::vector<int> order(candidates.size());
-            for (size_t i = 0; i < order.size(); ++i) order[i] = int(i);
-            std::stable_sort(order.begin(), order.end(), [&](int a, int b) { return by_cost(candidates[size_t(a)], candidates[size_t(b)]); });
-            order.resize(size_t(params_.search_keep));
-            std::vector<Candidate> kept;
-            std::vector<int> kept_start;
-            for (int i : order) kept.push_back(candidates[size_t(i)]), kept_start.push_back(start_of[size_t(i)]);
-            candidates = std::move(kept);
-            start_of = std::move(kept_start);
-        }
-        for (size_t c = 0; c < candidates.size(); ++c) {
-            double best_sim = 0;
-            for (size_t i = 1; i < params_.search_stages.size(); ++i)
-                std::tie(candidates[c].x, candidates[c].cost) = run_stage(params_.search_stages[i], start_of[c], candidates[c].x, best_sim);
-        }
-    }
-    std::stable_sort(candidates.begin(), candidates.end(), by_cost);
-    candidates.resize(std::min<size_t>(candidates.size(), size_t(params_.keep_best)));
-
-    // Final search and re-optimisation of the best few.
-    Candidate best = candidates.front();
-    double best_sim = 0;
     // The light: a grid over its direction at pose x, scored at the first final stage's level.
     auto estimate_light = [&](const PoseParams& x, int candidate) {
         const auto t0 = Clock::now();
@@ -870,7 +873,84 @@ RegistrationResult Registration::run(const PhotoInput& in, const Progress* progr
         rep.best_cost = -best_s;
         rep.evaluations = renders;
         rep.seconds = seconds_since(t0);
+        rep.T_camera_from_world = T;
         res.stages.push_back(rep);
+    };
+    // Subspace searches: each start runs the multi-scale stages on its own.
+    struct Candidate {
+        PoseParams x;
+        double cost;
+    };
+    std::vector<Candidate> candidates;
+    auto by_cost = [](const Candidate& a, const Candidate& b) { return a.cost < b.cost; };
+    std::vector<int> start_of;  // candidate -> start index, for the stage reports
+    for (size_t s = 0; s < starts.size(); ++s) {
+        PoseParams x = starts[s];
+        double cost = 0, best_sim = 0;
+        if (!params_.search_stages.empty()) std::tie(x, cost) = run_stage(params_.search_stages.front(), int(s), x, best_sim);
+        candidates.push_back({x, cost});
+        start_of.push_back(int(s));
+    }
+    if (params_.search_stages.size() > 1) {
+        if (params_.estimate_light && params_.light_after_screen && !params_.final_stages.empty()) {
+            // The later search stages render with the photo's light, estimated at the best
+            // screened pose, instead of a headlight.
+            const auto lowest = std::min_element(candidates.begin(), candidates.end(), by_cost);
+            estimate_light(lowest->x, start_of[size_t(lowest - candidates.begin())]);
+        }
+        if (params_.search_keep > 0 && size_t(params_.search_keep) < candidates.size()) {
+            std::vector<int> order(candidates.size());
+            for (size_t i = 0; i < order.size(); ++i) order[i] = int(i);
+            std::stable_sort(order.begin(), order.end(), [&](int a, int b) { return by_cost(candidates[size_t(a)], candidates[size_t(b)]); });
+            order.resize(size_t(params_.search_keep));
+            std::vector<Candidate> kept;
+            std::vector<int> kept_start;
+            for (int i : order) kept.push_back(candidates[size_t(i)]), kept_start.push_back(start_of[size_t(i)]);
+            candidates = std::move(kept);
+            start_of = std::move(kept_start);
+        }
+        for (size_t c = 0; c < candidates.size(); ++c) {
+            double best_sim = 0;
+            for (size_t i = 1; i < params_.search_stages.size(); ++i)
+                std::tie(candidates[c].x, candidates[c].cost) = run_stage(params_.search_stages[i], start_of[c], candidates[c].x, best_sim);
+        }
+    }
+    std::stable_sort(candidates.begin(), candidates.end(), by_cost);
+    candidates.resize(std::min<size_t>(candidates.size(), size_t(params_.keep_best)));
+
+    // Final search and re-optimisation of the best few.
+    Candidate best = candidates.front();
+    double best_sim = 0;
+    // Depth scan (RegistrationParams::depth_scan_mm): along the line of sight through the pivot
+    // as posed by x (pivot_cam + t), so the ROI's centre stays where it is in the picture.
+    auto depth_scan = [&](const PoseParams& x0, const StageParams& st, int candidate) {
+        const auto t0 = Clock::now();
+        const int stage_index = int(res.stages.size());
+        const Eigen::Vector3d dir = (pivot_cam + Eigen::Vector3d(x0[3], x0[4], x0[5])).normalized();
+        PoseParams best_x = x0;
+        double best_c = 1e300, best_s = 0;
+        int n = 0;
+        for (int k = -params_.depth_scan_steps; k <= params_.depth_scan_steps; ++k) {
+            PoseParams x = x0;
+            for (int i = 0; i < 3; ++i) x[size_t(3 + i)] += k * params_.depth_scan_mm * dir[i];
+            double s = 0;
+            const double c = evaluate(x, st, s);
+            ++evals_done;
+            ++n;
+            res.trace.push_back({evals_done, stage_index, s, c});
+            if (c < best_c) best_c = c, best_s = s, best_x = x;
+        }
+        StageReport rep;
+        rep.name = "depth-scan";
+        rep.start = candidate;
+        rep.params = st;
+        rep.best_similarity = best_s;
+        rep.best_cost = best_c;
+        rep.evaluations = n;
+        rep.seconds = seconds_since(t0);
+        rep.T_camera_from_world = apply_params(T0, pivot_cam, best_x);
+        res.stages.push_back(rep);
+        return best_x;
     };
     if (!params_.final_stages.empty()) {
         const int rounds = params_.estimate_light ? params_.light_rounds : 1;
@@ -882,6 +962,7 @@ RegistrationResult Registration::run(const PhotoInput& in, const Progress* progr
                 PoseParams x = candidates[c].x;
                 double cost = 0, s = 0;
                 const auto& stages = round > 0 && !params_.refine_stages.empty() ? params_.refine_stages : params_.final_stages;
+                if (params_.depth_scan_mm > 0 && !stages.empty()) x = depth_scan(x, stages.front(), int(c));
                 for (const auto& st : stages) std::tie(x, cost) = run_stage(st, int(c), x, s);
                 if (cost < best.cost) {
                     best = {x, cost};

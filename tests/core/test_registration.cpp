@@ -73,6 +73,13 @@ TEST(Registration, RunsAllConfiguredStagesAndReturnsARigidPose) {
         evals += s.evaluations;
     }
     EXPECT_EQ(evals, r.evaluations);
+    // Each stage records the pose it ended at (evaluate measures every stage's error from it):
+    // rigid, and the last stage (the refine of the winner, the light's second round) ends at
+    // the result.
+    for (const auto& s : r.stages) EXPECT_TRUE(is_rigid(s.T_camera_from_world)) << s.name;
+    EXPECT_EQ(r.stages.back().name, small_params().refine_stages.back().name);
+    EXPECT_NEAR((r.stages.back().T_camera_from_world - r.T_camera_from_world).norm(), 0.0, 1e-9);
+    EXPECT_GT((r.stages.front().T_camera_from_world - r.T_camera_from_world).norm(), 1e-6);
     EXPECT_EQ(r.trace.size(), size_t(r.evaluations));
     EXPECT_GT(r.similarity, 1.0);  // NMI of images that share anything exceeds 1
     ASSERT_FALSE(fractions.empty());
@@ -212,6 +219,49 @@ TEST(Registration, ScreensEveryStartThenSearchesOnlyTheKeptOnesAndRefinesTheWinn
     EXPECT_THROW(registration_params_from_json(bad, "params"), InputError);
     bad = j;
     bad["refine_stages"][0]["max_evaluations"] = 0;
+    EXPECT_THROW(registration_params_from_json(bad, "params"), InputError);
+}
+
+// The opt-in search options (depth along the pivot's line of sight, a depth scan before the
+// final stages): a scan of 2 * steps + 1 renders recorded as its own stage, a rigid result,
+// saved and read back, and bad values refused.
+TEST(Registration, DepthScanIsAStageOfItsOwnAndTheOptionsRoundTrip) {
+    const Fixture& f = fixture();
+    RegistrationParams p = small_params();
+    p.starts.resize(1);
+    p.search_stages.resize(1);
+    p.keep_best = 1;  // (the landmarks' other poses are starts too)
+    p.estimate_light = false;
+    p.depth_along_pivot_ray = true;
+    p.depth_scan_mm = 2.0;
+    p.depth_scan_steps = 2;
+    p.final_stages.front().step_depth_mm = 3.0;
+    p.final_stages.front().sample_distance_mm = 1.0;
+    Registration reg(f.c.volume, f.c.mask, p);
+    const RegistrationResult r = reg.run(f.c.photo);
+    EXPECT_TRUE(is_rigid(r.T_camera_from_world));
+    int scans = 0;
+    for (const auto& s : r.stages)
+        if (s.name == "depth-scan") {
+            ++scans;
+            EXPECT_EQ(s.evaluations, 5);
+            EXPECT_TRUE(is_rigid(s.T_camera_from_world));
+        }
+    EXPECT_EQ(scans, 1);  // one candidate, one round (no light rounds)
+    const nlohmann::json j = result_to_json(r)["parameters"];
+    EXPECT_EQ(j["depth_along_pivot_ray"], true);
+    EXPECT_EQ(j["final_stages"][0]["sample_distance_mm"], 1.0);
+    EXPECT_EQ(to_json(registration_params_from_json(j, "params")), j);
+    for (const char* key : {"depth_scan_mm", "depth_scan_steps"}) {
+        nlohmann::json bad = j;
+        bad[key] = -1;
+        EXPECT_THROW(registration_params_from_json(bad, "params"), InputError) << key;
+    }
+    nlohmann::json bad = j;
+    bad["optimizer"] = "gradient";
+    EXPECT_THROW(registration_params_from_json(bad, "params"), InputError);
+    bad = j;
+    bad["final_stages"][0]["sample_distance_mm"] = 0.01;
     EXPECT_THROW(registration_params_from_json(bad, "params"), InputError);
 }
 

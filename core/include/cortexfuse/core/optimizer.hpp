@@ -2,6 +2,7 @@
 // Downhill simplex (Nelder-Mead) through NLopt, with per-parameter initial steps,
 // evaluation budget and cancellation.
 #include <functional>
+#include <string>
 #include <vector>
 
 #include "cortexfuse/core/progress.hpp"
@@ -13,6 +14,8 @@ struct SimplexOptions {
     std::vector<double> xtol_abs;       // per parameter; stop when the simplex is this small
     double ftol_abs = 1e-5;
     int max_evaluations = 200;
+    /// "neldermead", "sbplx" or "bobyqa" (NLopt's LN_* methods).
+    std::string algorithm = "neldermead";
 };
 
 struct SimplexResult {

@@ -32,6 +32,13 @@ struct StageParams {
     int max_evaluations = 120;
     double xtol_mm = 0.1;      // stop when the simplex is smaller than this
     double xtol_deg = 0.1;
+    /// The weakly seen directions get their own first steps (0: step_mm / step_deg): depth
+    /// (tz) scales the picture by ~1 % per 3 mm, and tilts (rx, ry) about the pivot on the
+    /// cortex move it less than the turn about the view axis (rz) does.
+    double step_depth_mm = 0;
+    double step_tilt_deg = 0;
+    /// Ray-cast sample distance for this stage (0: RegistrationParams::sample_distance_mm).
+    double sample_distance_mm = 0;
 };
 
 struct RegistrationParams {
@@ -56,6 +63,9 @@ struct RegistrationParams {
     double light_max_offset = 0.5;
     int light_grid = 5;    // points per axis of the first grid (a finer 3 x 3 follows)
     int light_rounds = 1;  // estimate + final stages, repeated
+    /// Also estimate the light after the first search stage, at the best screened pose, so
+    /// the later search stages render with it rather than with a headlight.
+    bool light_after_screen = false;
     /// Working width the light grid is scored at; 0: the first final stage's. The light's
     /// direction is a broad trend, visible at a small size.
     int light_width_px = 0;
@@ -76,6 +86,20 @@ struct RegistrationParams {
     /// every run towards the landmark pose.
     bool landmark_prior_expected = false;
     double sample_distance_mm = 1.0;
+    /// The optimiser's translation frame: false, the camera's axes (tz along the optical axis);
+    /// true, tz along the line of sight through the pivot and tx, ty across it, so a depth step
+    /// only scales the picture about the ROI instead of also shifting it sideways.
+    bool depth_along_pivot_ray = false;
+    /// Depth scan before the final (and refine) stages: the cost at 2 * depth_scan_steps + 1
+    /// points depth_scan_mm apart along the line of sight through the pivot (a pure change of
+    /// scale about the ROI), scored at the stage's size and blur; the simplex starts from the
+    /// best. Depth is the weakest seen direction, and the coarse stages leave it where the
+    /// landmarks and the misalignment put it. 0: off.
+    double depth_scan_mm = 0;
+    int depth_scan_steps = 3;
+    /// NLopt's local derivative-free method for every stage: "neldermead" (the seed's downhill
+    /// simplex), "sbplx" (Rowan's subplex) or "bobyqa" (Powell's quadratic model).
+    std::string optimizer = "neldermead";
     /// Render only the first crossing of the surface level, opaque (RenderOptions::surface_only):
     /// a composited rendering's grey depends on where the sample lattice falls on the surface,
     /// which made the similarity saw-tooth along the viewing axis.
@@ -131,6 +155,8 @@ struct StageReport {
     double best_cost = 0;
     int evaluations = 0;
     double seconds = 0;
+    /// The pose the stage ended at (its best); the light grid's report: the pose it scored.
+    Pose T_camera_from_world = Pose::Identity();
 };
 
 struct TracePoint {
