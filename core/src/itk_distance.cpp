@@ -2,7 +2,6 @@
 #include "itk_distance.hpp"
 
 #include <itkImage.h>
-#include <itkSignedMaurerDistanceMapImageFilter.h>
 
 #include <algorithm>
 
@@ -14,18 +13,6 @@ namespace {
 
 using MaskImage = itk::Image<uint8_t, 3>;
 using DistImage = itk::Image<double, 3>;
-
-// Maurer's map of `m`: outside the set, the distance to its nearest voxel (> 0); inside, <= 0.
-DistImage::Pointer maurer(const MaskImage* m) {
-    auto f = itk::SignedMaurerDistanceMapImageFilter<MaskImage, DistImage>::New();
-    f->SetInput(m);
-    f->SetUseImageSpacing(true);
-    f->SetSquaredDistance(false);
-    f->SetInsideIsPositive(false);
-    f->SetBackgroundValue(0);
-    f->Update();
-    return f->GetOutput();
-}
 
 }  // namespace
 
@@ -41,8 +28,8 @@ void midpoint_signed_distance(const std::array<int, 3>& dims, const std::array<d
     for (size_t i = 0; i < n; ++i) o[i] = mask[i] ? 0 : 1;
     // Maurer's own signed map is zero on the set's edge voxels, so its zero level would sit on
     // them, not between them and their outside neighbours; two unsigned maps do not.
-    const auto to_inside = maurer(inside);
-    const auto to_outside = maurer(outside);
+    const auto to_inside = signed_maurer_distance<DistImage>(inside.GetPointer());
+    const auto to_outside = signed_maurer_distance<DistImage>(outside.GetPointer());
     const double* a = to_inside->GetBufferPointer();
     const double* b = to_outside->GetBufferPointer();
     phi.resize(n);

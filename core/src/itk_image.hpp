@@ -2,6 +2,7 @@
 // ITK images made from the bridge's plain grid. Only for itk_*.cpp files: it includes ITK
 // (whose bundled Eigen clashes with the system one; see itk_bridge.hpp).
 #include <itkImage.h>
+#include <itkSignedMaurerDistanceMapImageFilter.h>
 
 #include <cstring>
 
@@ -40,6 +41,21 @@ typename ImageT::Pointer image_from(const Grid& g, const PixelT* data) {
     auto img = make_image<ImageT>(g);
     std::memcpy(img->GetBufferPointer(), data, g.count() * sizeof(PixelT));
     return img;
+}
+
+/// Maurer's signed distance map of mask `m` in mm (the image's spacing): <= 0 on the mask's
+/// voxels (0 on its edge voxels), > 0 outside. DistImageT picks the precision (float for the
+/// skull strip's grids, double where the caller stretches an axis to 1e4 mm).
+template <class DistImageT, class MaskImageT>
+typename DistImageT::Pointer signed_maurer_distance(const MaskImageT* m) {
+    auto f = itk::SignedMaurerDistanceMapImageFilter<MaskImageT, DistImageT>::New();
+    f->SetInput(m);
+    f->SetUseImageSpacing(true);
+    f->SetSquaredDistance(false);
+    f->SetInsideIsPositive(false);
+    f->SetBackgroundValue(0);
+    f->Update();
+    return f->GetOutput();
 }
 
 }  // namespace cf::itkb

@@ -5,7 +5,6 @@
 #include <itkBinaryFillholeImageFilter.h>
 #include <itkConnectedComponentImageFilter.h>
 #include <itkImage.h>
-#include <itkSignedMaurerDistanceMapImageFilter.h>
 #include <itkSmoothingRecursiveGaussianImageFilter.h>
 
 #include <algorithm>
@@ -65,16 +64,7 @@ size_t count_on(const MaskImage* m) {
 }
 
 // Signed distance in mm: negative inside, positive outside.
-DistImage::Pointer signed_distance(const MaskImage* m) {
-    auto f = itk::SignedMaurerDistanceMapImageFilter<MaskImage, DistImage>::New();
-    f->SetInput(m);
-    f->SetUseImageSpacing(true);
-    f->SetSquaredDistance(false);
-    f->SetInsideIsPositive(false);
-    f->SetBackgroundValue(0);
-    f->Update();
-    return f->GetOutput();
-}
+DistImage::Pointer signed_distance(const MaskImage* m) { return signed_maurer_distance<DistImage>(m); }
 
 // Grows (radius_mm > 0) or shrinks (radius_mm < 0) a mask by a Euclidean ball.
 MaskImage::Pointer morph(const MaskImage* m, const Block& b, double radius_mm) {
