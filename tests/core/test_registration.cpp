@@ -79,6 +79,14 @@ TEST(Registration, RunsAllConfiguredStagesAndReturnsARigidPose) {
     for (const auto& s : r.stages) EXPECT_TRUE(is_rigid(s.T_camera_from_world)) << s.name;
     EXPECT_EQ(r.stages.back().name, small_params().refine_stages.back().name);
     EXPECT_NEAR((r.stages.back().T_camera_from_world - r.T_camera_from_world).norm(), 0.0, 1e-9);
+    // The winner's last round: a depth scan, then every refine stage in order (the defaults: a
+    // restart with wide steps at 250 px, then the 375 px refine).
+    const auto& refine = small_params().refine_stages;
+    ASSERT_EQ(refine.size(), 2u);
+    ASSERT_GE(r.stages.size(), refine.size() + 1);
+    const size_t first = r.stages.size() - refine.size();
+    EXPECT_EQ(r.stages[first - 1].name, "depth-scan");
+    for (size_t i = 0; i < refine.size(); ++i) EXPECT_EQ(r.stages[first + i].name, refine[i].name);
     EXPECT_GT((r.stages.front().T_camera_from_world - r.T_camera_from_world).norm(), 1e-6);
     EXPECT_EQ(r.trace.size(), size_t(r.evaluations));
     EXPECT_GT(r.similarity, 1.0);  // NMI of images that share anything exceeds 1
