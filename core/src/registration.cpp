@@ -786,6 +786,15 @@ RegistrationResult Registration::run(const PhotoInput& in, const Progress* progr
         for (int round = 1; round < params_.light_rounds; ++round)
             for (const auto& s : params_.refine_stages.empty() ? params_.final_stages : params_.refine_stages)
                 total_budget += s.max_evaluations;
+    // The light grids and the depth scans render too: without them the bar reached 100 % about
+    // a tenth of a registration before the end (the 375 px refine ran with the bar full).
+    if (!params_.final_stages.empty()) {
+        const int rounds = params_.estimate_light ? params_.light_rounds : 1;
+        const int candidates_first_round = std::min(params_.keep_best, screened);
+        const int scans = candidates_first_round + (rounds - 1);
+        if (params_.depth_scan_mm > 0) total_budget += scans * (2 * params_.depth_scan_steps + 1);
+        if (params_.estimate_light) total_budget += rounds * (params_.light_grid * params_.light_grid + 9);
+    }
     int evals_done = 0;
     double best_sim_overall = -1e300;
 
