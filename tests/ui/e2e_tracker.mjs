@@ -43,6 +43,13 @@ export async function trackerE2E({ page, base, step, expect, shot, checkTargets,
     await page.waitForTimeout(700); // a whole 0.3 s window of frames with the pointer still
     await page.getByTestId("record-btn").tap();
     await page.locator(`[data-testid="fid-row-${label}"][data-recorded="true"]`).waitFor({ timeout: 10000 });
+    // The row turns as soon as the daemon's state is read back; the screen stays busy (its
+    // buttons off) until the landmarks panel has refreshed too. Wait for that, or the next tap
+    // is ignored and a check of a button races the refresh (seen under ASan).
+    await page.waitForFunction(() => {
+      const b = document.querySelector('[data-testid="record-btn"]');
+      return !!b && (!b.disabled || b.textContent === "All recorded");
+    }, null, { timeout: 10000 });
   };
   // Redo (7.14): two recorded, then `Redo: clear recorded` clears them on the daemon too.
   for (const label of labels.slice(0, 2)) await recordNext(label);
