@@ -84,9 +84,9 @@ RegistrationParams RegistrationParams::defaults() {
     // Eleventh session: the winner's last round first restarts the simplex at 250 px with wide
     // steps (3 mm / 4 deg) before the 375 px refine, and a depth scan along the pivot's line of
     // sight (the translation axes turned to it) precedes each round. Started at the truth, 15 of
-    // 16 cases (12 by more than 0.001) ended at a lower cost than started from the landmarks: the simplex had stopped
-    // short in the tilt/depth valley, and a restart with a fresh, wide simplex walks further
-    // along it. ev8 protocol 1.004 -> 0.875 mm (paired -0.13 +- 0.04), ev8 wide 94 -> 100 %,
+    // 16 cases (12 by more than 0.001) ended at a lower cost than started from the landmarks:
+    // the simplex had stopped short in the tilt/depth valley, and a restart with a fresh, wide
+    // simplex walks further along it. ev8 protocol 1.004 -> 0.875 mm (paired -0.13 +- 0.04), ev8 wide 94 -> 100 %,
     // +81 evaluations at 250 px (docs/registration.md, "A restart of the winner's simplex").
     p.refine_stages = {
         {"restart-fwhm2", 2.0, 3.0, 4.0, 250, 60, 0.05, 0.05},
