@@ -3,6 +3,7 @@
 #include <nlopt.hpp>
 
 #include <limits>
+#include <optional>
 #include <stdexcept>
 
 namespace cf {
@@ -33,16 +34,23 @@ double trampoline(const std::vector<double>& x, std::vector<double>&, void* data
     }
     return v;
 }
+
+/// NLopt's method for a SimplexOptions::algorithm name; nullopt for an unknown name.
+std::optional<nlopt::algorithm> algorithm_of(const std::string& name) {
+    if (name == "neldermead") return nlopt::LN_NELDERMEAD;
+    if (name == "sbplx") return nlopt::LN_SBPLX;
+    if (name == "bobyqa") return nlopt::LN_BOBYQA;
+    return std::nullopt;
+}
 }  // namespace
+
+bool simplex_algorithm_known(const std::string& name) { return algorithm_of(name).has_value(); }
 
 SimplexResult nelder_mead(const std::function<double(const std::vector<double>&)>& f, const std::vector<double>& x0,
                           const SimplexOptions& o, const CancelToken* cancel) {
-    const nlopt::algorithm algo = o.algorithm == "sbplx"    ? nlopt::LN_SBPLX
-                                  : o.algorithm == "bobyqa" ? nlopt::LN_BOBYQA
-                                                            : nlopt::LN_NELDERMEAD;
-    if (o.algorithm != "neldermead" && o.algorithm != "sbplx" && o.algorithm != "bobyqa")
-        throw std::invalid_argument("optimizer: unknown algorithm " + o.algorithm);
-    nlopt::opt opt(algo, unsigned(x0.size()));
+    const auto algo = algorithm_of(o.algorithm);
+    if (!algo) throw std::invalid_argument("optimizer: unknown algorithm " + o.algorithm);
+    nlopt::opt opt(*algo, unsigned(x0.size()));
     Ctx ctx{&f, cancel, 0, false, &opt, x0, std::numeric_limits<double>::infinity()};
     opt.set_min_objective(trampoline, &ctx);
     if (!o.initial_step.empty()) opt.set_initial_step(o.initial_step);

@@ -159,7 +159,7 @@ void RegistrationParams::validate(const std::string& ctx) const {
     if (search_keep < 0) bad("search_keep must be >= 0");
     if (!(depth_scan_mm >= 0 && depth_scan_mm <= 50) || depth_scan_steps < 1 || depth_scan_steps > 20)
         bad("depth_scan_mm must be 0..50 (0: off) and depth_scan_steps 1..20");
-    if (optimizer != "neldermead" && optimizer != "sbplx" && optimizer != "bobyqa")
+    if (!simplex_algorithm_known(optimizer))
         bad("optimizer must be neldermead, sbplx or bobyqa");
     if (binning != "hard" && binning != "linear") bad("binning must be \"hard\" or \"linear\"");
     if (starts.empty()) bad("at least one start");
@@ -805,12 +805,23 @@ RegistrationResult Registration::run(const PhotoInput& in, const Progress* progr
         return -similarity + prior(T);
     };
 
+    // One report per stage, light grid or depth scan: what the trace and `evaluate` read.
+    auto report = [&](const std::string& name, int start, const StageParams& st, double best_similarity, double best_cost,
+                      int evaluations, Clock::time_point t0, const Pose& T) {
+        StageReport rep;
+        rep.name = name;
+        rep.start = start;
+        rep.params = st;
+        rep.best_similarity = best_similarity;
+        rep.best_cost = best_cost;
+        rep.evaluations = evaluations;
+        rep.seconds = seconds_since(t0);
+        rep.T_camera_from_world = T;
+        res.stages.push_back(rep);
+    };
+
     auto run_stage = [&](const StageParams& st, int start_index, const PoseParams& x0, double& best_sim) {
         const auto t0 = Clock::now();
-        StageReport rep;
-        rep.name = st.name;
-        rep.start = start_index;
-        rep.params = st;
         const int stage_index = int(res.stages.size());
         double best_seen_sim = -1e300, best_seen_cost = 1e300;
         auto f = [&](const std::vector<double>& u) {
@@ -838,12 +849,7 @@ RegistrationResult Registration::run(const PhotoInput& in, const Progress* progr
         so.ftol_abs = 1e-6;
         so.algorithm = params_.optimizer;
         const SimplexResult r = nelder_mead(f, to_opt(x0), so, cancel);
-        rep.best_cost = r.f;
-        rep.best_similarity = best_seen_sim;
-        rep.evaluations = r.evaluations;
-        rep.seconds = seconds_since(t0);
-        rep.T_camera_from_world = apply_params(T0, pivot_cam, from_opt(r.x));
-        res.stages.push_back(rep);
+        report(st.name, start_index, st, best_seen_sim, r.f, r.evaluations, t0, apply_params(T0, pivot_cam, from_opt(r.x)));
         best_sim = best_seen_sim;
         return std::make_pair(from_opt(r.x), r.f);
     };
@@ -884,17 +890,7 @@ RegistrationResult Registration::run(const PhotoInput& in, const Progress* progr
         const double spacing = params_.light_grid > 1 ? 2 * m / (params_.light_grid - 1) : m;
         try_grid(best_xy, spacing / 2, 3);
         scorer.set_light(best_xy);
-        // One report like a stage's (evaluations, best similarity, time): the trace plots it too.
-        StageReport rep;
-        rep.name = "light";
-        rep.start = candidate;
-        rep.params = st;
-        rep.best_similarity = best_s;
-        rep.best_cost = -best_s;
-        rep.evaluations = renders;
-        rep.seconds = seconds_since(t0);
-        rep.T_camera_from_world = T;
-        res.stages.push_back(rep);
+        report("light", candidate, st, best_s, -best_s, renders, t0, T);
     };
     // Subspace searches: each start runs the multi-scale stages on its own.
     struct Candidate {
@@ -960,16 +956,7 @@ RegistrationResult Registration::run(const PhotoInput& in, const Progress* progr
             res.trace.push_back({evals_done, stage_index, s, c});
             if (c < best_c) best_c = c, best_s = s, best_x = x;
         }
-        StageReport rep;
-        rep.name = "depth-scan";
-        rep.start = candidate;
-        rep.params = st;
-        rep.best_similarity = best_s;
-        rep.best_cost = best_c;
-        rep.evaluations = n;
-        rep.seconds = seconds_since(t0);
-        rep.T_camera_from_world = apply_params(T0, pivot_cam, best_x);
-        res.stages.push_back(rep);
+        report("depth-scan", candidate, st, best_s, best_c, n, t0, apply_params(T0, pivot_cam, best_x));
         return best_x;
     };
     if (!params_.final_stages.empty()) {

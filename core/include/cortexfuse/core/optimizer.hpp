@@ -25,6 +25,9 @@ struct SimplexResult {
 };
 
 /// Minimises f from x0. Throws Cancelled if `cancel` fires (checked every evaluation).
+/// Whether `name` is one of SimplexOptions::algorithm's values.
+bool simplex_algorithm_known(const std::string& name);
+
 SimplexResult nelder_mead(const std::function<double(const std::vector<double>&)>& f, const std::vector<double>& x0,
                           const SimplexOptions& opt, const CancelToken* cancel = nullptr);
 
