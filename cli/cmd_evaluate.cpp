@@ -254,14 +254,19 @@ void add_evaluate(CLI::App& app) {
                     for (const auto& st : r.stages) {
                         const PoseErrors es = pose_errors(truth, K, st.T_camera_from_world, mesh);
                         stages.push_back({{"name", st.name}, {"start", st.start}, {"cost", st.best_cost}, {"mre_mm", es.mre_mm},
-                                          {"offset_camera_mm", {es.offset_camera_mm.x(), es.offset_camera_mm.y(), es.offset_camera_mm.z()}}});
+                                          {"offset_camera_mm", {es.offset_camera_mm.x(), es.offset_camera_mm.y(), es.offset_camera_mm.z()}},
+                                          {"T_camera_from_world", pose_to_json(st.T_camera_from_world)}});
                     }
                     reg.seconds.push_back(r.seconds);
                     reg.evals.push_back(r.evaluations);
                     runs.push_back({{"case", dir.filename().string()}, {"trial", t}, {"misalignment", x},
-                                    {"initial", {{"mre_mm", e0.mre_mm}, {"tre_mm", e0.tre_mm}, {"ipe_px", e0.ipe_px}}},
+                                    {"truth_T_camera_from_world", pose_to_json(truth.T_camera_from_world)},
+                                    {"landmark_T_camera_from_world", pose_to_json(fit.T_camera_from_world)},
+                                    {"initial", {{"mre_mm", e0.mre_mm}, {"tre_mm", e0.tre_mm}, {"ipe_px", e0.ipe_px},
+                                                 {"T_camera_from_world", pose_to_json(T_init)}}},
                                     {"registered", {{"mre_mm", e1.mre_mm}, {"tre_mm", e1.tre_mm}, {"ipe_px", e1.ipe_px},
                                                     {"targets_missed", e1.targets_missed},
+                                                    {"T_camera_from_world", pose_to_json(r.T_camera_from_world)},
                                                     {"offset_camera_mm", {e1.offset_camera_mm.x(), e1.offset_camera_mm.y(), e1.offset_camera_mm.z()}}}},
                                     {"landmarks_only", {{"mre_mm", e_lm.mre_mm}, {"tre_mm", e_lm.tre_mm},
                                                         {"offset_camera_mm", {e_lm.offset_camera_mm.x(), e_lm.offset_camera_mm.y(), e_lm.offset_camera_mm.z()}}}},
