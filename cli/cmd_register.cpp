@@ -104,6 +104,7 @@ void add_register(CLI::App& app) {
             }
             std::cerr << "registered in " << r.seconds << " s, " << r.evaluations << " evaluations, " << r.params.metric
                       << " " << r.initial_similarity << " -> " << r.similarity << "\n";
+            for (const auto& w : r.warnings) std::cerr << "warning: " << opt->case_dir << ": " << w << "\n";
             return 0;
         });
     });

@@ -3,7 +3,9 @@
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
 
+#include <Eigen/SVD>
 #include <cmath>
+#include <cstdio>
 #include <fstream>
 #include <nlohmann/json.hpp>
 #include <sstream>
@@ -141,6 +143,30 @@ std::vector<Landmark> parse_landmarks(const json& j, const std::string& file) {
     return out;
 }
 
+LandmarkSpread landmark_spread(const std::vector<Landmark>& lms) {
+    auto ratio = [&](auto point_of) {
+        using V = std::decay_t<decltype(point_of(lms.front()))>;
+        if (lms.size() < 2) return 0.0;
+        V mean = V::Zero();
+        for (const auto& l : lms) mean += point_of(l);
+        mean /= double(lms.size());
+        Eigen::MatrixXd M(long(lms.size()), mean.size());
+        for (size_t i = 0; i < lms.size(); ++i) M.row(long(i)) = (point_of(lms[i]) - mean).transpose();
+        const Eigen::JacobiSVD<Eigen::MatrixXd> svd(M);
+        const auto s = svd.singularValues();
+        return s.size() >= 2 ? s(1) / std::max(s(0), 1e-12) : 0.0;
+    };
+    return {ratio([](const Landmark& l) { return l.world_mm; }), ratio([](const Landmark& l) { return l.pixel; })};
+}
+
+std::string landmark_spread_warning(const LandmarkSpread& s) {
+    const double worst = std::min(s.world, s.pixel);
+    if (!(worst < kLandmarkSpreadWarn)) return "";
+    char buf[160];
+    std::snprintf(buf, sizeof buf, "the landmarks lie nearly on a line (spread %.2f, under %.2f): ", worst, kLandmarkSpreadWarn);
+    return std::string(buf) + "the turn about that line rests on the image alone; add a pair away from the line";
+}
+
 void validate_landmarks(const std::vector<Landmark>& lms, const Intrinsics& K, const std::string& file) {
     if (lms.size() < 4) throw InputError(file, "needs at least 4 landmark pairs, found " + std::to_string(lms.size()));
     for (const auto& l : lms)
@@ -149,25 +175,9 @@ void validate_landmarks(const std::vector<Landmark>& lms, const Intrinsics& K, c
                                        std::to_string(l.pixel.y()) + ") is outside the " + std::to_string(K.width) + "x" +
                                        std::to_string(K.height) + " photo");
     // Collinear (or coincident) points leave the pose undetermined: check the spread of both sets.
-    auto spread = [](auto const& pts) {
-        using V = std::decay_t<decltype(pts[0])>;
-        V mean = V::Zero();
-        for (const auto& p : pts) mean += p;
-        mean /= double(pts.size());
-        Eigen::MatrixXd M(pts.size(), mean.size());
-        for (size_t i = 0; i < pts.size(); ++i) M.row(long(i)) = (pts[i] - mean).transpose();
-        Eigen::JacobiSVD<Eigen::MatrixXd> svd(M);
-        const auto s = svd.singularValues();
-        return s.size() >= 2 ? s(1) / std::max(s(0), 1e-12) : 0.0;
-    };
-    std::vector<Eigen::Vector2d> px;
-    std::vector<Eigen::Vector3d> w;
-    for (const auto& l : lms) {
-        px.push_back(l.pixel);
-        w.push_back(l.world_mm);
-    }
-    if (spread(px) < 0.02) throw InputError(file, "landmark pixels are collinear; pick points that span an area");
-    if (spread(w) < 0.02) throw InputError(file, "landmark world points are collinear; pick points that span an area");
+    const LandmarkSpread sp = landmark_spread(lms);
+    if (sp.pixel < kLandmarkSpreadMin) throw InputError(file, "landmark pixels are collinear; pick points that span an area");
+    if (sp.world < kLandmarkSpreadMin) throw InputError(file, "landmark world points are collinear; pick points that span an area");
 }
 
 Roi parse_roi(const json& j, const std::string& file) {

@@ -322,6 +322,8 @@ json result_to_json(const RegistrationResult& r) {
     j["nmi"] = r.params.metric == "nmi" ? r.similarity : j.value("nmi", r.similarity);
     j["initial_similarity"] = r.initial_similarity;
     j["landmark_rms_px"] = {{"initial", r.initial_landmark_rms_px}, {"final", r.final_landmark_rms_px}};
+    j["landmark_spread"] = {{"world", r.landmark_spread.world}, {"pixel", r.landmark_spread.pixel}};
+    j["warnings"] = r.warnings;
     j["evaluations"] = r.evaluations;
     j["seconds"] = r.seconds;
     j["pivot_world_mm"] = {r.pivot_world_mm.x(), r.pivot_world_mm.y(), r.pivot_world_mm.z()};
@@ -749,6 +751,10 @@ RegistrationResult Registration::run(const PhotoInput& in, const Progress* progr
         for (size_t i = 1; i < fits.size(); ++i) alternatives.push_back(fits[i].T_camera_from_world);
     }
     res.initial_T_camera_from_world = T0;
+    if (in.landmarks.size() >= 2) {
+        res.landmark_spread = landmark_spread(in.landmarks);
+        if (const std::string w = landmark_spread_warning(res.landmark_spread); !w.empty()) res.warnings.push_back(w);
+    }
     const LandmarkPrior prior(in, params_);
     res.initial_landmark_rms_px = reprojection_rms_px(in.landmarks, K, T0);
 

@@ -733,7 +733,8 @@ void Daemon::Impl::register_job_kinds() {
                                    {"seconds", r.seconds},
                                    {"renderer", engine.renderer().name()},
                                    {"T_camera_from_world", pose_to_json(r.T_camera_from_world)},
-                                   {"result_file", out.filename().string()}};
+                                   {"result_file", out.filename().string()},
+                                   {"warnings", r.warnings}};
             if (case_id) summary["case_id"] = *case_id;
             else summary["case"] = p["case"];
             if (lc.spec.truth && !lc.spec.truth->targets_world_mm.empty()) {

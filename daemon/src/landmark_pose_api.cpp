@@ -59,7 +59,10 @@ json initial_alignment(const std::vector<Landmark>& lms, const PhotoRecord& phot
     }
     json inl = json::array();
     for (int i : fit.inliers) inl.push_back(i);
+    const LandmarkSpread spread = landmark_spread(lms);
     return {{"photo_id", photo.id},
+            {"spread", {{"world", spread.world}, {"pixel", spread.pixel}}},
+            {"warning", landmark_spread_warning(spread)},
             {"method", fit.method},
             {"T_camera_from_world", pose_to_json(fit.T_camera_from_world)},
             {"rms_px", std::sqrt(sum_sq_px / double(lms.size()))},

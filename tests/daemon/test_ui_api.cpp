@@ -114,6 +114,25 @@ TEST(LandmarkPose, RecoversTheTruePoseFromExactPairsAndReportsEachPairsError) {
     EXPECT_EQ(r.j["pairs"][0]["label"], "P1");
     EXPECT_EQ(r.j["revision"], 1);
     EXPECT_EQ(r.j["method"], "pnp-ransac");  // six pairs: RANSAC first, as the register job
+    // Six points round a patch: well spread, no warning.
+    EXPECT_GT(r.j["spread"]["world"].get<double>(), 0.5);
+    EXPECT_EQ(r.j["warning"], "");
+}
+
+TEST(LandmarkPose, PairsNearlyOnALineAreAlignedWithAWarning) {
+    const std::int64_t id = case_with_photo("landmark pose thin");
+    const Intrinsics K = test_camera();
+    json pairs = json::array();
+    for (int i = 0; i < 6; ++i) {
+        const Eigen::Vector3d w(-25 + 10.0 * i, (i % 2 ? 1.5 : -1.5), 0.5 * i);
+        const auto p = project(K, true_pose(), w);
+        ASSERT_TRUE(p.has_value());
+        pairs.push_back({{"label", "P" + std::to_string(i + 1)}, {"world_mm", {w.x(), w.y(), w.z()}}, {"pixel", {p->x(), p->y()}}});
+    }
+    const Reply r = post("/api/cases/" + std::to_string(id) + "/landmarks/initial-pose", {{"landmarks", pairs}});
+    ASSERT_EQ(r.status, 200) << r.body;
+    EXPECT_LT(r.j["spread"]["world"].get<double>(), kLandmarkSpreadWarn);
+    EXPECT_NE(r.j["warning"].get<std::string>().find("nearly on a line"), std::string::npos) << r.body;
 }
 
 TEST(LandmarkPose, NoisyPairsGiveThePoseTheRegisterJobStartsFromAndTheirErrors) {

@@ -15,6 +15,10 @@ export interface Alignment {
   T_camera_from_world: number[][];
   rms_px: number;
   max_error_px: number;
+  /** The pairs' spread (0 on a line, 1 a round cloud) and, when they lie nearly on a line, why
+   *  that matters in words (core's landmark_spread_warning; "" when well spread). */
+  spread?: { world: number; pixel: number };
+  warning?: string;
   inliers: number[];
   pairs: AlignedPair[];
 }
@@ -41,7 +45,8 @@ export function alignmentHeadline(a: Alignment | null, pairCount: number, error:
   let worst = -1;
   a.pairs.forEach((p, i) => { if (p.error_px !== null && (worst < 0 || p.error_px > (a.pairs[worst].error_px ?? 0))) worst = i; });
   const w = worst >= 0 ? `, worst ${a.pairs[worst].label} ${a.pairs[worst].error_px!.toFixed(1)} px` : "";
-  return `Initial alignment from ${a.pairs.length} pairs: reprojection RMS ${a.rms_px.toFixed(2)} px${w} (${a.method}).`;
+  const line = `Initial alignment from ${a.pairs.length} pairs: reprojection RMS ${a.rms_px.toFixed(2)} px${w} (${a.method}).`;
+  return a.warning ? `${line} Warning: ${a.warning}.` : line;
 }
 
 /** One pair's error in words for its row ("2.3 px", "—" while none). */

@@ -768,7 +768,7 @@ function casePhoto(id: number, body: HTMLElement, alive: Alive, got: (c: CaseRec
     const paintAlignment = () => {
       const a = aligner.alignment;
       alignLine.textContent = alignmentHeadline(a, aligner.pairCount, aligner.error);
-      alignLine.dataset.state = a ? "ok" : aligner.error ? "refused" : aligner.pairCount < 4 ? "too-few" : "computing";
+      alignLine.dataset.state = a ? (a.warning ? "warning" : "ok") : aligner.error ? "refused" : aligner.pairCount < 4 ? "too-few" : "computing";
       if (a) alignLine.dataset.rmsPx = a.rms_px.toFixed(3); else delete alignLine.dataset.rmsPx;
       errSpans.forEach((sp, i) => {
         sp.textContent = pairErrorText(a, i);

@@ -31,6 +31,10 @@ describe("initial alignment", () => {
     expect(alignmentHeadline(null, 5, "")).toBe("Initial alignment: computing…");
     const a = answer([1, 2, 7.5, 0.5]);
     expect(alignmentHeadline(a, 4, "")).toBe("Initial alignment from 4 pairs: reprojection RMS 3.92 px, worst L3 7.5 px (pnp).");
+    // Pairs nearly on a line: the daemon's warning follows the numbers.
+    const lined = { ...a, spread: { world: 0.07, pixel: 0.3 }, warning: "the landmarks lie nearly on a line (spread 0.07, under 0.15): add a pair away from the line" };
+    expect(alignmentHeadline(lined, 4, "")).toBe("Initial alignment from 4 pairs: reprojection RMS 3.92 px, worst L3 7.5 px (pnp). Warning: the landmarks lie nearly on a line (spread 0.07, under 0.15): add a pair away from the line.");
+    expect(alignmentHeadline({ ...a, warning: "" }, 4, "")).not.toContain("Warning");
     expect(alignmentHeadline(null, 4, "case 3 landmarks: landmark world points are collinear")).toContain("not possible with these pairs: case 3 landmarks: landmark world points are collinear");
     expect(pairErrorText(a, 2)).toBe("7.5 px");
     expect(pairErrorText(null, 0)).toBe("— px");

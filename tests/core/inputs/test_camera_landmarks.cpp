@@ -204,3 +204,33 @@ TEST(LandmarkFit, TooFewOrDegeneratePairsAreInputErrors) {
         EXPECT_EQ(e.input(), "lm.json");
     }
 }
+
+// Spread: 0 on a line, about 1 for a round cloud; a set that nearly lies on a line is accepted
+// with a warning (the turn about the line is barely fixed by it), a collinear one refused.
+TEST(LandmarkSpread, MeasuresHowFarPairsSpanAnAreaAndWarnsNearALine) {
+    const Intrinsics K = dslr_camera();
+    std::vector<Landmark> round, thin;
+    for (int i = 0; i < 6; ++i) {
+        const double a = 2 * M_PI * i / 6;
+        round.push_back({"R", Eigen::Vector3d(30 * std::cos(a), 30 * std::sin(a), 2.0 * (i % 2)),
+                         Eigen::Vector2d(375 + 150 * std::cos(a), 250 + 150 * std::sin(a))});
+        // Along x, 2.4 mm (and 24 px) off the line at most: spread about 0.07, as the phantom's
+        // MNI152 case 0004.
+        const double off = (i % 2 ? 1.0 : -1.0) * (i == 2 || i == 3 ? 2.4 : 1.2);
+        thin.push_back({"T", Eigen::Vector3d(10.0 * i, off, 0.3 * i), Eigen::Vector2d(100 + 100.0 * i, 250 + 10 * off)});
+    }
+    const LandmarkSpread r = landmark_spread(round), t = landmark_spread(thin);
+    EXPECT_GT(r.world, 0.9);
+    EXPECT_GT(r.pixel, 0.9);
+    EXPECT_LT(t.world, kLandmarkSpreadWarn);
+    EXPECT_GT(t.world, kLandmarkSpreadMin);
+    EXPECT_LT(t.pixel, kLandmarkSpreadWarn);
+    EXPECT_EQ(landmark_spread_warning(r), "");
+    const std::string w = landmark_spread_warning(t);
+    EXPECT_NE(w.find("nearly on a line"), std::string::npos) << w;
+    EXPECT_NO_THROW(validate_landmarks(thin, K, "lm.json"));  // accepted: the image may settle it
+    // Only one of the two sets thin is enough for the warning.
+    std::vector<Landmark> mixed = round;
+    for (size_t i = 0; i < mixed.size(); ++i) mixed[i].world_mm = thin[i].world_mm;
+    EXPECT_NE(landmark_spread_warning(landmark_spread(mixed)), "");
+}

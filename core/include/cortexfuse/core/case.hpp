@@ -41,6 +41,21 @@ struct CaseSpec {
 
 /// Reads case.json and the small JSON files; checks that the big files exist. Throws InputError.
 CaseSpec read_case(const std::filesystem::path& dir);
+/// How far the landmarks span an area rather than a line: for the model points (world) and
+/// the photo's pixels, the second singular value of the centred points over the first (0 on a
+/// line, 1 for a round cloud).
+struct LandmarkSpread {
+    double world = 0, pixel = 0;
+};
+LandmarkSpread landmark_spread(const std::vector<Landmark>& lms);
+/// Below this a set is refused as collinear: no pose can be fitted.
+constexpr double kLandmarkSpreadMin = 0.02;
+/// Below this a set is accepted with a warning: the turn about the line the points nearly lie
+/// on is barely fixed by them (the phantom's MNI152 cases 0002 and 0004, 0.07-0.13, started
+/// 50 deg off about it), so the image alone must settle it.
+constexpr double kLandmarkSpreadWarn = 0.15;
+/// The warning for a set below kLandmarkSpreadWarn, or "" for a well spread one.
+std::string landmark_spread_warning(const LandmarkSpread& s);
 /// Validates landmarks / ROI against the camera image size (called by read_case).
 void validate_landmarks(const std::vector<Landmark>& lms, const Intrinsics& K, const std::string& file);
 void validate_roi(const Roi& roi, const Intrinsics& K, const std::string& file);

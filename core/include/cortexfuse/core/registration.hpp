@@ -171,6 +171,10 @@ struct RegistrationResult {
     Pose initial_T_camera_from_world = Pose::Identity();
     std::string initial_method;  // "pnp", "pnp-ransac", "initial_pose"
     double initial_landmark_rms_px = 0, final_landmark_rms_px = 0;
+    /// The landmarks' spread (case.hpp; both 0 without landmarks) and what a person should know
+    /// about this run (e.g. landmarks nearly on a line), in words.
+    LandmarkSpread landmark_spread;
+    std::vector<std::string> warnings;
     double similarity = 0;        // final metric value (NMI by default)
     double initial_similarity = 0;
     int evaluations = 0;
