@@ -201,6 +201,7 @@ struct Texture {
     cv::Mat sulc;                 // CV_32F sulcal depth, mm (0 where no surface)
     cv::Mat sulc_blur;            // smoothed, for vessel steering
     cv::Mat vein, artery, small;  // CV_32F alpha in [0, 1]
+    cv::Mat vein_tube, artery_tube;  // CV_32F tube profile: 0 at a vessel's edge, 1 on its axis
     cv::Mat grad_x, grad_y;       // CV_32F height-map gradient (mm per mm)
     std::vector<Vec2> bifurcations_ab;
 
@@ -575,6 +576,32 @@ PhantomCase generate_phantom_case(const PhantomSurface& S, const PhantomParams& 
                 hp[x] = float(L.bump_mm) * fbm(a / bs, b / bs, L.nseed + 11, 3) + 0.5f * vp[x] + 0.3f * ap[x] + 0.06f * sp[x];
             }
         }
+        // Veins and arteries are round: a tube's height across them (from the distance to the
+        // vessel's edge and the local radius) gives the rounded shading and the bright reflex
+        // along the axis that a flat raised ribbon lacks.
+        auto tube = [&](const cv::Mat& alpha, cv::Mat& profile) {
+            cv::Mat inside, edge_mm, radius;
+            cv::compare(alpha, 0.35, inside, cv::CMP_GT);
+            cv::distanceTransform(inside, edge_mm, cv::DIST_L2, 3);
+            edge_mm *= tx.texel;
+            const int k = std::max(1, int(std::ceil(2.2 / tx.texel)));
+            cv::dilate(edge_mm, radius, cv::getStructuringElement(cv::MORPH_ELLIPSE, cv::Size(2 * k + 1, 2 * k + 1)));
+            profile = cv::Mat::zeros(alpha.size(), CV_32F);
+            for (int y = 0; y < tx.N; ++y) {
+                const float* d = edge_mm.ptr<float>(y);
+                const float* r = radius.ptr<float>(y);
+                float* pr = profile.ptr<float>(y);
+                float* hp = height.ptr<float>(y);
+                for (int x = 0; x < tx.N; ++x) {
+                    if (d[x] <= 0 || r[x] <= 0) continue;
+                    const float q = std::min(d[x] / r[x], 1.f);  // 0 at the edge, 1 on the axis
+                    pr[x] = std::sqrt(std::max(0.f, q * (2 - q)));
+                    hp[x] += 0.6f * r[x] * pr[x];
+                }
+            }
+        };
+        tube(tx.vein, tx.vein_tube);
+        tube(tx.artery, tx.artery_tube);
         cv::Sobel(height, tx.grad_x, CV_32F, 1, 0, 3, 1.0 / (8 * tx.texel));
         cv::Sobel(height, tx.grad_y, CV_32F, 0, 1, 3, 1.0 / (8 * tx.texel));
     }
@@ -644,11 +671,16 @@ PhantomCase generate_phantom_case(const PhantomSurface& S, const PhantomParams& 
                     const float va = tx.sample(tx.vein, ab), aa = tx.sample(tx.artery, ab), sa = tx.sample(tx.small, ab);
                     const float mot = fbm(float(ab.x() / 4), float(ab.y() / 4), ns + 3, 3);
                     Col alb = L.cortex * float(1 + L.mottle * (2 * mot - 1));
+                    // The pia's capillary bed: a fine, reddish speckle at a fraction of a millimetre.
+                    const float cap = fbm(float(ab.x() / 0.45), float(ab.y() / 0.45), ns + 13, 2);
+                    alb = mix(alb, L.small_vessel, float(L.mottle) * 0.9f * smoothstep(0.45f, 0.8f, cap));
                     // Sulci: darker, redder (pia, CSF and small vessels in the groove).
                     alb = mix(alb, L.sulcus, 0.85f * smoothstep(0.6f, 3.5f, sd));
                     alb = mix(alb, L.small_vessel, 0.55f * sa);
-                    alb = mix(alb, L.artery, 0.9f * aa);
-                    alb = mix(alb, L.vein, 0.95f * va);
+                    // Blood is deepest on a vessel's axis: darker there, translucent at the edges.
+                    const float vt = tx.sample(tx.vein_tube, ab), at = tx.sample(tx.artery_tube, ab);
+                    alb = mix(alb, L.artery * (1.15f - 0.3f * at), (0.7f + 0.2f * at) * aa);
+                    alb = mix(alb, L.vein * (1.2f - 0.35f * vt), (0.72f + 0.23f * vt) * va);
                     // Bump: tilt the normal by the texture height gradient.
                     const float gx = tx.sample(tx.grad_x, ab), gy = tx.sample(tx.grad_y, ab);
                     Vec3 t1 = cr.e1 - nrm * nrm.dot(cr.e1), t2 = cr.e2 - nrm * nrm.dot(cr.e2);
