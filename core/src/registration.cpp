@@ -784,10 +784,14 @@ RegistrationResult Registration::run(const PhotoInput& in, const Progress* progr
     };
 
     int total_budget = 0;
-    const int screened = params_.search_keep > 0 ? std::min(params_.search_keep, int(starts.size())) : int(starts.size());
+    // Starts pruned to search_keep only when a later search stage follows; the best keep_best of
+    // them go on to the final stages.
+    const bool pruned = params_.search_stages.size() > 1 && params_.search_keep > 0;
+    const int screened = pruned ? std::min(params_.search_keep, int(starts.size())) : int(starts.size());
+    const int finalists = std::min(params_.keep_best, screened);
     for (size_t i = 0; i < params_.search_stages.size(); ++i)
         total_budget += params_.search_stages[i].max_evaluations * (i == 0 ? int(starts.size()) : screened);
-    for (const auto& s : params_.final_stages) total_budget += s.max_evaluations * params_.keep_best;
+    for (const auto& s : params_.final_stages) total_budget += s.max_evaluations * finalists;
     if (params_.estimate_light)
         for (int round = 1; round < params_.light_rounds; ++round)
             for (const auto& s : params_.refine_stages.empty() ? params_.final_stages : params_.refine_stages)
@@ -796,10 +800,10 @@ RegistrationResult Registration::run(const PhotoInput& in, const Progress* progr
     // a tenth of a registration before the end (the 375 px refine ran with the bar full).
     if (!params_.final_stages.empty()) {
         const int rounds = params_.estimate_light ? params_.light_rounds : 1;
-        const int candidates_first_round = std::min(params_.keep_best, screened);
-        const int scans = candidates_first_round + (rounds - 1);
+        const int scans = finalists + (rounds - 1);
         if (params_.depth_scan_mm > 0) total_budget += scans * (2 * params_.depth_scan_steps + 1);
-        if (params_.estimate_light) total_budget += rounds * (params_.light_grid * params_.light_grid + 9);
+        const int grids = rounds + (params_.search_stages.size() > 1 && params_.light_after_screen ? 1 : 0);
+        if (params_.estimate_light) total_budget += grids * (params_.light_grid * params_.light_grid + 9);
     }
     int evals_done = 0;
     double best_sim_overall = -1e300;

@@ -99,6 +99,33 @@ TEST(Registration, RunsAllConfiguredStagesAndReturnsARigidPose) {
     EXPECT_EQ(result_to_json(r)["parameters"], to_json(small_params()));
 }
 
+// The bar's budget with one search stage: search_keep prunes nothing then (it acts between search
+// stages), so every start's candidate competes and keep_best of them reach the final stages. The
+// budget counted search_keep's one: the bar was full a depth scan and a final stage early.
+TEST(Registration, ProgressBudgetFitsAOneStageSearch) {
+    const Fixture& f = fixture();
+    RegistrationParams p = small_params();
+    p.starts.resize(1);
+    p.starts.push_back({0, 0, 0, 3, 0, 0});
+    p.starts.push_back({0, 0, 0, -3, 0, 0});
+    p.search_stages.resize(1);
+    p.search_keep = 1;
+    p.keep_best = 2;
+    Registration reg(f.c.volume, f.c.mask, p);
+    std::vector<double> fractions;
+    Progress progress;
+    progress.report = [&](const std::string&, double fr) { fractions.push_back(fr); };
+    const RegistrationResult r = reg.run(f.c.photo, &progress);
+    int finals = 0;
+    for (const auto& s : r.stages) finals += s.name == p.final_stages.front().name;
+    EXPECT_EQ(finals, 2);  // both finalists, though search_keep is 1
+    ASSERT_GE(fractions.size(), 2u);
+    for (size_t i = 0; i + 1 < fractions.size(); ++i) EXPECT_LT(fractions[i], 1.0) << "report " << i;
+    // Not over-counted either: the last report before "done" is near the end (simplex stages
+    // may stop before their budget).
+    EXPECT_GT(fractions[fractions.size() - 2], 0.75);
+}
+
 TEST(Registration, IsDeterministic) {
     const Fixture& f = fixture();
     Registration reg(f.c.volume, f.c.mask, small_params());
