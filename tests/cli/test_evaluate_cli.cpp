@@ -10,6 +10,7 @@
 #include <nlohmann/json.hpp>
 
 #include "base_case.hpp"
+#include "cli_files.hpp"
 #include "cortexfuse/core/pose.hpp"
 #include "process.hpp"
 
@@ -19,30 +20,10 @@ using namespace cf;
 
 namespace {
 
-json read_json(const fs::path& p) {
-    std::ifstream in(p);
-    return json::parse(in);
-}
-void write_json(const fs::path& p, const json& j) { std::ofstream(p) << j.dump(2) << "\n"; }
-
-Pose pose_of(const json& m) {
-    Pose T;
-    for (int r = 0; r < 4; ++r)
-        for (int c = 0; c < 4; ++c) T(r, c) = m.at(size_t(r)).at(size_t(c)).get<double>();
-    return T;
-}
-
 bool rigid(const Pose& T) {
     const Eigen::Matrix3d R = T.topLeftCorner<3, 3>();
     return (R.transpose() * R - Eigen::Matrix3d::Identity()).norm() < 1e-6 && std::abs(R.determinant() - 1) < 1e-6 &&
            T.row(3).isApprox(Eigen::RowVector4d(0, 0, 0, 1));
-}
-
-fs::path fresh_dir(const std::string& name) {
-    const fs::path p = fs::temp_directory_path() / ("cf_cli_" + name + "_" + std::to_string(::getpid()));
-    fs::remove_all(p);
-    fs::create_directories(p);
-    return p;
 }
 
 test::ProcessResult run_evaluate(std::vector<std::string> args) {
@@ -56,7 +37,7 @@ test::ProcessResult run_evaluate(std::vector<std::string> args) {
 fs::path make_set(const fs::path& work) {
     fs::create_directories(work / "set");
     fs::copy(test::base_cases() / "small", work / "set" / "case_0000", fs::copy_options::recursive);
-    write_json(work / "params.json", {{"search_stages", json::array()},
+    test::write_json(work / "params.json", {{"search_stages", json::array()},
                                       {"final_stages", {{{"name", "one"}, {"max_evaluations", 8}, {"render_width_px", 96}}}}});
     return work / "set";
 }
@@ -64,25 +45,25 @@ fs::path make_set(const fs::path& work) {
 }  // namespace
 
 TEST(EvaluateCli, JsonCarriesEveryPoseAndTheMisalignmentStaysInRange) {
-    const fs::path work = fresh_dir("evaluate");
+    const fs::path work = test::fresh_dir("evaluate");
     const fs::path set = make_set(work);
-    const Pose T_truth = pose_of(read_json(set / "case_0000" / "truth.json").at("T_camera_from_world"));
+    const Pose T_truth = test::pose_of(test::read_json(set / "case_0000" / "truth.json").at("T_camera_from_world"));
     for (const bool wide : {false, true}) {
         std::vector<std::string> args{set.string(), "--trials", "3", "--params", (work / "params.json").string(),
                                       "--json", (work / "e.json").string(), "--md", (work / "e.md").string()};
         if (wide) args.push_back("--wide");
         const auto r = run_evaluate(args);
         ASSERT_EQ(r.exit_code, 0) << r.err;
-        const json j = read_json(work / "e.json");
+        const json j = test::read_json(work / "e.json");
         ASSERT_EQ(j.at("runs").size(), 3u);
         const double max_mm = wide ? 20 : 10, max_deg = wide ? 15 : 5;
         EXPECT_EQ(j.at("max_mm").get<double>(), max_mm);
         for (const json& run : j.at("runs")) {
-            const Pose T_true = pose_of(run.at("truth_T_camera_from_world"));
+            const Pose T_true = test::pose_of(run.at("truth_T_camera_from_world"));
             EXPECT_TRUE(T_true.isApprox(T_truth, 1e-12));
-            const Pose T_lm = pose_of(run.at("landmark_T_camera_from_world"));
-            const Pose T_init = pose_of(run.at("initial").at("T_camera_from_world"));
-            const Pose T_reg = pose_of(run.at("registered").at("T_camera_from_world"));
+            const Pose T_lm = test::pose_of(run.at("landmark_T_camera_from_world"));
+            const Pose T_init = test::pose_of(run.at("initial").at("T_camera_from_world"));
+            const Pose T_reg = test::pose_of(run.at("registered").at("T_camera_from_world"));
             EXPECT_TRUE(rigid(T_lm) && rigid(T_init) && rigid(T_reg));
             // The start is the landmark pose misaligned within the range: turns of at most
             // max_deg about each axis, so at most 3 * max_deg in all (angles of composed turns add
@@ -95,8 +76,8 @@ TEST(EvaluateCli, JsonCarriesEveryPoseAndTheMisalignmentStaysInRange) {
             for (int i = 0; i < 6; ++i) EXPECT_LE(std::abs(m.at(size_t(i)).get<double>()), i < 3 ? max_deg : max_mm);
             // Every stage records where it left the pose; this schedule's one stage is the result.
             ASSERT_FALSE(run.at("stages").empty());
-            for (const json& st : run.at("stages")) EXPECT_TRUE(rigid(pose_of(st.at("T_camera_from_world")))) << st.at("name");
-            EXPECT_TRUE(pose_of(run.at("stages").back().at("T_camera_from_world")).isApprox(T_reg, 1e-9));
+            for (const json& st : run.at("stages")) EXPECT_TRUE(rigid(test::pose_of(st.at("T_camera_from_world")))) << st.at("name");
+            EXPECT_TRUE(test::pose_of(run.at("stages").back().at("T_camera_from_world")).isApprox(T_reg, 1e-9));
         }
         EXPECT_NE(std::ifstream(work / "e.md").peek(), EOF);
     }
@@ -104,9 +85,9 @@ TEST(EvaluateCli, JsonCarriesEveryPoseAndTheMisalignmentStaysInRange) {
 }
 
 TEST(EvaluateCli, AFolderWithoutCasesIsRefusedAndNothingIsWritten) {
-    const fs::path work = fresh_dir("evaluate_empty");
+    const fs::path work = test::fresh_dir("evaluate_empty");
     fs::create_directories(work / "set" / "case_0000");
-    write_json(work / "set" / "case_0000" / "case.json", json::object());  // no truth.json beside it
+    test::write_json(work / "set" / "case_0000" / "case.json", json::object());  // no truth.json beside it
     const auto r = run_evaluate({(work / "set").string(), "--trials", "1", "--json", (work / "e.json").string()});
     EXPECT_NE(r.exit_code, 0);
     EXPECT_NE(r.err.find("holds no case folder with case.json and truth.json"), std::string::npos) << r.err;

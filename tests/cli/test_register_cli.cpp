@@ -11,6 +11,7 @@
 #include <sstream>
 
 #include "base_case.hpp"
+#include "cli_files.hpp"
 #include "cortexfuse/core/case.hpp"
 #include "cortexfuse/core/pose.hpp"
 #include "process.hpp"
@@ -21,25 +22,10 @@ using namespace cf;
 
 namespace {
 
-json read_json(const fs::path& p) {
-    std::ifstream in(p);
-    return json::parse(in);
-}
-void write_json(const fs::path& p, const json& j) { std::ofstream(p) << j.dump(2) << "\n"; }
-
-Pose pose_of(const json& m) {
-    Pose T;
-    for (int r = 0; r < 4; ++r)
-        for (int c = 0; c < 4; ++c) T(r, c) = m.at(size_t(r)).at(size_t(c)).get<double>();
-    return T;
-}
-
-fs::path fresh_dir(const std::string& name) {
-    const fs::path p = fs::temp_directory_path() / ("cf_cli_" + name + "_" + std::to_string(::getpid()));
-    fs::remove_all(p);
-    fs::create_directories(p);
-    return p;
-}
+using test::fresh_dir;
+using test::pose_of;
+using test::read_json;
+using test::write_json;
 
 // Pixel coordinates under an image resize by `s` (OpenCV pixel centres).
 double scale_px(double u, double s) { return (u + 0.5) * s - 0.5; }
