@@ -615,6 +615,7 @@ PhantomCase generate_phantom_case(const PhantomSurface& S, const PhantomParams& 
     std::vector<uint8_t> layer(npx, kDrape);
     std::vector<Col> img(npx, Col::Zero());
     std::vector<Vec3> pworld(npx, Vec3::Zero());
+    std::vector<float> depth_cam(npx, float(dist + 60));  // camera z of what each pixel shows, mm
     const Vec3 light_dir_ref = (light_w - cr.c).normalized();
     const float ref_dist2 = float((light_w - cr.c).squaredNorm());
     const uint32_t ns = L.nseed;
@@ -661,6 +662,16 @@ PhantomCase generate_phantom_case(const PhantomSurface& S, const PhantomParams& 
                 }
             }
             layer[i] = lay;
+            {
+                // What the pixel shows, for the depth of field: the brain, the bone sphere or the
+                // skin sphere (the drapes lie a little beyond the skin they cover).
+                const bool on_brain = lay == kCortex || lay == kBoneWall;
+                const bool on_bone = lay == kBone || lay == kDura;
+                if (on_brain || on_bone || hs) {
+                    const Vec3& q = on_brain ? pworld[i] : on_bone ? qb : qs;
+                    depth_cam[i] = float((R * q + T.topRightCorner<3, 1>()).z()) + (lay == kDrape ? 15.f : 0.f);
+                }
+            }
             Col c;
             switch (lay) {
                 case kCortex: {
@@ -987,11 +998,56 @@ PhantomCase generate_phantom_case(const PhantomSurface& S, const PhantomParams& 
                 const size_t i = size_t(v) * rw + u;
                 const double r2 = (std::pow(u - cxn, 2) + std::pow(v - cyn, 2)) / (rn * rn);
                 const float vig = float(1 - L.vignette * r2);
-                Col c = img[i] * L.wb * float(L.exposure) * vig;
-                for (int k = 0; k < 3; ++k) c[k] = std::pow(std::clamp(c[k], 0.f, 1.f), 1 / 2.2f);
-                row[u] = cv::Vec3f(c[2], c[1], c[0]) * 255.f;  // BGR
+                const Col c = img[i] * L.wb * float(L.exposure) * vig;  // linear light, glare above 1
+                row[u] = cv::Vec3f(c[2], c[1], c[0]);                    // BGR
             }
         }
+    }
+    {
+        // Depth of field, in linear light before the sensor clips: each pixel blurred by its circle
+        // of confusion, fx * aperture * |z - z_focus| / (z * z_focus) (thin lens, focus far beyond
+        // the focal length). Focused on the visible cortex's median depth, and stopped down until
+        // 90 % of it is blurred by at most 1.5 px (the photographer keeps the cortex sharp; the
+        // scalp and drapes soften). The aperture (3-10 mm before stopping down) comes from the
+        // look's seed, so the other draws stay as they were.
+        std::vector<double> zc;
+        for (size_t i = 0; i < npx; ++i)
+            if (layer[i] == kCortex) zc.push_back(depth_cam[i]);
+        double z_focus = (R * cr.c + T.topRightCorner<3, 1>()).z();
+        double aperture_mm = 3.0 + 7.0 * double(splitmix64(L.nseed) >> 11) / double(1ull << 53);
+        if (!zc.empty()) {
+            std::nth_element(zc.begin(), zc.begin() + long(zc.size() / 2), zc.end());
+            z_focus = zc[zc.size() / 2];
+            std::vector<double> coc_per_mm;  // CoC in px per mm of aperture
+            for (double z : zc) coc_per_mm.push_back(Kr.fx * std::abs(z - z_focus) / (z * z_focus));
+            const size_t k90 = coc_per_mm.size() * 9 / 10;
+            std::nth_element(coc_per_mm.begin(), coc_per_mm.begin() + long(k90), coc_per_mm.end());
+            if (coc_per_mm[k90] > 1e-9) aperture_mm = std::min(aperture_mm, 1.5 / coc_per_mm[k90]);
+        }
+        const std::array<double, 5> sigmas{0, 1, 2, 4, 8};  // px at render size
+        std::array<cv::Mat, 5> levels;
+        levels[0] = photo;
+        for (size_t k = 1; k < sigmas.size(); ++k) cv::GaussianBlur(photo, levels[k], cv::Size(0, 0), sigmas[k]);
+        cv::Mat focused(rh, rw, CV_32FC3);
+        for (int v = 0; v < rh; ++v)
+            for (int u = 0; u < rw; ++u) {
+                const size_t i = size_t(v) * rw + u;
+                const double z = std::max(1.0, double(depth_cam[i]));
+                const double coc_px = Kr.fx * aperture_mm * std::abs(z - z_focus) / (z * z_focus);
+                const double sg = std::min(coc_px / 2, sigmas.back());  // a blur disc's sd is about half its diameter
+                size_t k = 0;
+                while (k + 2 < sigmas.size() && sg > sigmas[k + 1]) ++k;
+                const float w = float(std::clamp((sg - sigmas[k]) / (sigmas[k + 1] - sigmas[k]), 0.0, 1.0));
+                focused.at<cv::Vec3f>(v, u) = levels[k].at<cv::Vec3f>(v, u) * (1 - w) + levels[k + 1].at<cv::Vec3f>(v, u) * w;
+            }
+        photo = focused;
+        notes << "aperture_mm=" << fmt(aperture_mm, 1) << " ";
+    }
+    // The sensor clips after the lens has blurred: glare stays saturated where it is bright.
+    for (int v = 0; v < rh; ++v) {
+        cv::Vec3f* row = photo.ptr<cv::Vec3f>(v);
+        for (int u = 0; u < rw; ++u)
+            for (int k = 0; k < 3; ++k) row[u][k] = 255.f * std::pow(std::clamp(row[u][k], 0.f, 1.f), 1 / 2.2f);
     }
     cv::GaussianBlur(photo, photo, cv::Size(0, 0), L.blur_px);
     if (rw != W || rh != H) cv::resize(photo, photo, cv::Size(W, H), 0, 0, cv::INTER_CUBIC);
