@@ -3,7 +3,6 @@
 // each stage, result) so a failure can be taken apart afterwards, and a folder with nothing to
 // evaluate is refused without writing anything.
 #include <gtest/gtest.h>
-#include <unistd.h>
 
 #include <filesystem>
 #include <fstream>
@@ -11,6 +10,7 @@
 
 #include "base_case.hpp"
 #include "cli_files.hpp"
+#include "cortexfuse/core/camera.hpp"
 #include "cortexfuse/core/pose.hpp"
 #include "process.hpp"
 
@@ -20,11 +20,8 @@ using namespace cf;
 
 namespace {
 
-bool rigid(const Pose& T) {
-    const Eigen::Matrix3d R = T.topLeftCorner<3, 3>();
-    return (R.transpose() * R - Eigen::Matrix3d::Identity()).norm() < 1e-6 && std::abs(R.determinant() - 1) < 1e-6 &&
-           T.row(3).isApprox(Eigen::RowVector4d(0, 0, 0, 1));
-}
+// core's is_rigid, as strict as the poses written here allow (orthonormal to 1e-6).
+bool rigid(const Pose& T) { return is_rigid(T, 1e-7); }
 
 test::ProcessResult run_evaluate(std::vector<std::string> args) {
     std::vector<std::string> argv{test::cortexfuse_exe(), "evaluate"};

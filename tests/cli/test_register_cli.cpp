@@ -1,10 +1,8 @@
 // `cortexfuse register` on valid cases: photos of any size (a DSLR-size JPEG registers to the
 // pose of its small version) and the landmark initialisation it is asked for.
 #include <gtest/gtest.h>
-#include <unistd.h>
 
 #include <filesystem>
-#include <fstream>
 #include <nlohmann/json.hpp>
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
