@@ -143,6 +143,20 @@ struct Crani {
     std::array<double, 4> skin_amp{}, skin_phase{}, drape_amp{}, drape_phase{};
     double bone_w = 6, skin_w = 20, dura_w = 3;      // ring widths, mm
     double h_bone = 8, h_skin = 14;                 // heights above the brain sphere, mm
+    // The sterile towels framing the field: towel k's hem is the line at towel_d[k] mm from the
+    // centre, its outward normal at angle towel_psi[k]; towels later in the list lie on top.
+    // Real drapes meet the scalp in straight edges, not in a smooth ring.
+    int n_towels = 0;
+    std::array<double, 5> towel_psi{}, towel_d{}, towel_tone{}, towel_weave_rad{}, towel_fold_mm{}, towel_fold_off{};
+    double hem_mm = 4;  // the folded hem along a towel's edge
+    // Burr holes at the rim of the bone flap (the flap is cut between them): angle, centre
+    // distance and radius, mm.
+    int n_burr = 0;
+    std::array<double, 4> burr_th{}, burr_rho{}, burr_r{};
+    // Scalp clips (Raney clips) along the skin edge: count, first angle, length and width, mm.
+    int n_clips = 0;
+    double clip_th0 = 0, clip_len = 9, clip_w = 4;
+    Eigen::Array3f clip_col = Eigen::Array3f(0.05f, 0.15f, 0.6f);
 
     Vec2 ab(const Vec3& p, double* height = nullptr) const {
         const Vec3 v = p - O;
@@ -169,9 +183,55 @@ struct Crani {
         return r_bone(th) + bone_w * k;
     }
     double r_drape(double th) const {
+        if (n_towels > 0) return std::max(r_skin(th) + 1.5, r_towels(th));
         double k = 1;
         for (size_t i = 0; i < drape_amp.size(); ++i) k += drape_amp[i] * std::cos(double(i + 1) * th + drape_phase[i]);
         return r_skin(th) + skin_w * k;
+    }
+    /// Polar radius of the towels' window (the nearest hem crossed going out at angle th).
+    double r_towels(double th) const {
+        double r = 1e9;
+        for (int k = 0; k < n_towels; ++k) {
+            const double c = std::cos(th - towel_psi[size_t(k)]);
+            if (c > 1e-3) r = std::min(r, towel_d[size_t(k)] / c);
+        }
+        return r;
+    }
+    /// The towel on top at (a, b) (-1: none) and how far inside it the point lies, mm.
+    int towel_at(const Vec2& ab, double* inside_mm) const {
+        for (int k = n_towels - 1; k >= 0; --k) {
+            const double s = ab.x() * std::cos(towel_psi[size_t(k)]) + ab.y() * std::sin(towel_psi[size_t(k)]) - towel_d[size_t(k)];
+            if (s > 0) {
+                if (inside_mm) *inside_mm = s;
+                return k;
+            }
+        }
+        return -1;
+    }
+    /// Distance (mm, <= 0 inside) from (a, b) to the nearest burr hole's edge; +inf if none.
+    double burr_edge(const Vec2& ab, double* radius = nullptr) const {
+        double best = std::numeric_limits<double>::infinity();
+        for (int k = 0; k < n_burr; ++k) {
+            const Vec2 c = burr_rho[size_t(k)] * Vec2(std::cos(burr_th[size_t(k)]), std::sin(burr_th[size_t(k)]));
+            const double d = (ab - c).norm() - burr_r[size_t(k)];
+            if (d < best) best = d, radius ? (void)(*radius = burr_r[size_t(k)]) : (void)0;
+        }
+        return best;
+    }
+    /// Whether (a, b) on the skin lies under a scalp clip; `across` in [-1, 1] across its width.
+    bool clip_at(const Vec2& ab, double* across) const {
+        if (n_clips == 0) return false;
+        const double th = std::atan2(ab.y(), ab.x()), rho = ab.norm();
+        const double step = 2 * kPi / n_clips;
+        const double k = std::round((th - clip_th0) / step);
+        const double thc = clip_th0 + k * step;
+        const double r0 = r_skin(thc) - 1.0;
+        const Vec2 dir(std::cos(thc), std::sin(thc)), side(-dir.y(), dir.x());
+        const Vec2 q = ab - r0 * dir;
+        const double along = q.dot(dir), acr = q.dot(side);
+        if (along < 0 || along > clip_len || std::abs(acr) > clip_w / 2 || rho <= 0) return false;
+        if (across) *across = acr / (clip_w / 2);
+        return true;
     }
     /// Nearest intersection of a ray with the sphere of radius Rc + h; false if missed.
     bool hit_sphere(const Vec3& C, const Vec3& d, double h, Vec3& q) const {
@@ -341,7 +401,7 @@ Look random_look(Rng& r) {
     return L;
 }
 
-enum Layer : uint8_t { kDrape = 0, kSkin, kSkinCut, kBone, kDura, kBoneWall, kCortex, kDark };
+enum Layer : uint8_t { kDrape = 0, kSkin, kSkinCut, kBone, kDura, kBoneWall, kCortex, kDark, kBurr, kClip };
 
 // ---------------------------------------------------------------- helpers
 /// Camera distortion coefficients for a consumer lens.
@@ -463,6 +523,46 @@ PhantomCase generate_phantom_case(const PhantomSurface& S, const PhantomParams& 
     cr.skin_w = rng.uni(6, 35);
     cr.dura_w = rng.uni(1.5, 5);
     const double bone_above_rim = rng.uni(0.5, 3.0), scalp_mm = rng.uni(2, 5);
+    {
+        // The surgical field around the opening: towels, burr holes, scalp clips. Drawn from a
+        // stream of their own so that poses, landmarks and the rest of a seed's case stay as they
+        // were before these were added.
+        Rng rx(splitmix64(P.seed * 0x2545F4914F6CDD1Dull + splitmix64(uint64_t(index) + 0x51EDull)));
+        cr.n_towels = rx.integer(3, 5);
+        const double base = rx.uni(0, 2 * kPi), margin = cr.skin_w * rx.uni(0.15, 0.5);
+        for (int k = 0; k < cr.n_towels; ++k) {
+            const size_t kk = size_t(k);
+            cr.towel_psi[kk] = base + 2 * kPi * k / cr.n_towels + rx.uni(-0.25, 0.25);
+            double reach = 0;  // the towel's hem clears the skin edge plus a margin everywhere
+            for (int j = 0; j < 180; ++j) {
+                const double th = 2 * kPi * j / 180;
+                reach = std::max(reach, (cr.r_skin(th) + margin) * std::cos(th - cr.towel_psi[kk]));
+            }
+            cr.towel_d[kk] = reach + cr.skin_w * rx.uni(0, 0.6);
+            cr.towel_tone[kk] = rx.uni(0.85, 1.15);
+            cr.towel_weave_rad[kk] = rx.uni(0, kPi);
+            cr.towel_fold_mm[kk] = rx.uni(45, 90);
+            cr.towel_fold_off[kk] = rx.uni(0, 90);
+        }
+        cr.hem_mm = rx.uni(3, 6);
+        cr.n_burr = rx.integer(1, 4);
+        const double burr_base = rx.uni(0, 2 * kPi);
+        for (int k = 0; k < cr.n_burr; ++k) {
+            const size_t kk = size_t(k);
+            cr.burr_th[kk] = burr_base + 2 * kPi * k / cr.n_burr + rx.uni(-0.3, 0.3);
+            cr.burr_r[kk] = rx.uni(3.5, 7.0);  // 7-14 mm perforators
+            cr.burr_rho[kk] = cr.r_bone(cr.burr_th[kk]) + cr.burr_r[kk] * rx.uni(0.0, 0.5);
+        }
+        if (rx.chance(0.6)) {
+            const double perimeter = 2 * kPi * (cr.R1 + cr.R2) / 2 + 2 * kPi * cr.bone_w;
+            cr.n_clips = std::max(4, int(std::lround(perimeter / rx.uni(12, 20))));
+            cr.clip_th0 = rx.uni(0, 2 * kPi);
+            cr.clip_len = rx.uni(8, 11);
+            cr.clip_w = rx.uni(3.5, 5);
+            const Eigen::Array3f cols[3] = {{0.06f, 0.16f, 0.42f}, {0.62f, 0.64f, 0.62f}, {0.06f, 0.06f, 0.07f}};
+            cr.clip_col = cols[rx.integer(0, 2)] * float(rx.uni(0.85, 1.15));
+        }
+    }
 
     // ---- pose: near the outward normal, tilted, random roll
     const double tilt = P.max_tilt_deg * std::sqrt(rng.uni()) * kPi / 180, az = rng.uni(0, 2 * kPi);
@@ -644,14 +744,15 @@ PhantomCase generate_phantom_case(const PhantomSurface& S, const PhantomParams& 
                 lay = kDrape;
             } else if (rho_s > cr.r_skin(th_s)) {
                 lay = rho_s < cr.r_skin(th_s) + 1.5 ? kSkinCut : kSkin;
+                if (cr.clip_at(ab_s, nullptr)) lay = kClip;
             } else {
                 const bool hb = cr.hit_sphere(Cw, d, cr.h_bone, qb);
                 if (hb) ab_b = cr.ab(qb);
                 const double th_b = std::atan2(ab_b.y(), ab_b.x()), rho_b = ab_b.norm();
                 if (!hb || rho_b > cr.r_skin(th_b)) {
-                    lay = kSkinCut;  // the cut scalp wall
+                    lay = cr.clip_at(ab_s, nullptr) ? kClip : kSkinCut;  // the cut scalp wall
                 } else if (rho_b > cr.r_bone(th_b)) {
-                    lay = rho_b < cr.r_bone(th_b) + cr.dura_w ? kDura : kBone;
+                    lay = cr.burr_edge(ab_b) < 0 ? kBurr : rho_b < cr.r_bone(th_b) + cr.dura_w ? kDura : kBone;
                 } else if (rb.triangle[i] >= 0) {
                     const Vec3 p = interpolate_at(rb, S.mesh.triangles, S.mesh.vertices, u, v, Eigen::Vector3f(0, 0, 0)).cast<double>();
                     const Vec2 abc = cr.ab(p);
@@ -666,7 +767,7 @@ PhantomCase generate_phantom_case(const PhantomSurface& S, const PhantomParams& 
                 // What the pixel shows, for the depth of field: the brain, the bone sphere or the
                 // skin sphere (the drapes lie a little beyond the skin they cover).
                 const bool on_brain = lay == kCortex || lay == kBoneWall;
-                const bool on_bone = lay == kBone || lay == kDura;
+                const bool on_bone = lay == kBone || lay == kDura || lay == kBurr;
                 if (on_brain || on_bone || hs) {
                     const Vec3& q = on_brain ? pworld[i] : on_bone ? qb : qs;
                     depth_cam[i] = float((R * q + T.topRightCorner<3, 1>()).z()) + (lay == kDrape ? 15.f : 0.f);
@@ -713,6 +814,39 @@ PhantomCase generate_phantom_case(const PhantomSurface& S, const PhantomParams& 
                     c = shade(alb, nrm, qb, lay == kDura ? L.spec * 0.7 : 0.25, lay == kDura ? 50 : 12);
                     break;
                 }
+                case kBurr: {
+                    // A perforator's hole through the bone: a bevelled wall, then the dura at the
+                    // bottom, in the hole's shadow.
+                    double rad = 5;
+                    const double e = cr.burr_edge(ab_b, &rad);
+                    const float q = std::clamp(float(-e / rad), 0.f, 1.f);  // 0 at the rim, 1 at the centre
+                    const Vec3 sph = (qb - cr.O).normalized();
+                    const float t = fbm(float(ab_b.x() / 1.5), float(ab_b.y() / 1.5), ns + 15, 3);
+                    if (q < 0.3f) {
+                        Vec2 to_c(0, 0);
+                        for (int k = 0; k < cr.n_burr; ++k) {
+                            const Vec2 cc = cr.burr_rho[size_t(k)] * Vec2(std::cos(cr.burr_th[size_t(k)]), std::sin(cr.burr_th[size_t(k)]));
+                            if ((ab_b - cc).norm() <= cr.burr_r[size_t(k)]) to_c = (cc - ab_b).normalized();
+                        }
+                        const Vec3 nrm = (0.5 * sph + to_c.x() * cr.e1 + to_c.y() * cr.e2).normalized();
+                        c = shade(L.bone_wall * (0.75f + 0.35f * t), nrm, qb, 0.2, 15) * (0.35f + 1.5f * q);
+                    } else {
+                        const Col floor = mix(L.dura, L.blood, 0.25f + 0.3f * t);
+                        c = shade(floor, sph, qb, L.spec * 0.3, 40) * (0.12f + 0.25f * smoothstep(0.3f, 1.f, q));
+                    }
+                    break;
+                }
+                case kClip: {
+                    // A plastic scalp clip: rounded across its width, glossy.
+                    double acr = 0;
+                    cr.clip_at(ab_s, &acr);
+                    const Vec3 sph = (qs - cr.O).normalized();
+                    const Vec2 dir = ab_s.normalized();
+                    const Vec3 side = -dir.y() * cr.e1 + dir.x() * cr.e2;
+                    const Vec3 nrm = (sph + 0.9 * acr * side).normalized();
+                    c = shade(cr.clip_col, nrm, qs, 0.9, 90) * float(0.75 + 0.25 * (1 - acr * acr));
+                    break;
+                }
                 case kBoneWall: {
                     const Vec3 radial = (pworld[i] - cr.c);
                     const Vec3 nrm = (-(radial - cr.n * radial.dot(cr.n)).normalized() + 0.3 * cr.n).normalized();
@@ -732,18 +866,58 @@ PhantomCase generate_phantom_case(const PhantomSurface& S, const PhantomParams& 
                         alb = L.skin_cut * (0.35f + 0.5f * t2);
                     }
                     c = shade(alb, nrm, hs ? qs : cr.c, L.spec * 0.4, 30);
+                    // The towels' edge lies on the skin: a contact shadow along it.
+                    if (hs && cr.n_towels > 0) c *= float(0.55 + 0.45 * smoothstep(0.f, 2.5f, float(cr.r_drape(th_s) - rho_s)));
                     break;
                 }
                 case kDark:
                     c = L.bone_wall * 0.08f;
                     break;
-                default: {  // drapes: cloth weave and folds, in image space
-                    const float su = float(u / render_scale), sv = float(v / render_scale);
+                default: {  // drapes: towels with hems, cloth weave, folds and creases, in image space
+                    float su = float(u / render_scale), sv = float(v / render_scale);
                     const float fold = fbm(su / 180.f, sv / 180.f, ns + 9, 3);
+                    // Which towel is on top here, found on the skin sphere (or, off it, on the
+                    // tangent plane at the field's height).
+                    Vec2 ab_d = ab_s;
+                    if (!hs) {
+                        const Vec3 p0 = cr.O + cr.n * (cr.Rc + cr.h_skin);
+                        const double den = d.dot(cr.n);
+                        if (std::abs(den) > 1e-6) {
+                            const Vec3 q = Cw + d * ((p0 - Cw).dot(cr.n) / den);
+                            ab_d = Vec2((q - p0).dot(cr.e1), (q - p0).dot(cr.e2));
+                        }
+                    }
+                    double inside = 99;
+                    const int tk = cr.towel_at(ab_d, &inside);
+                    float tone = 1, shadow = 1, hem = 1, crease = 0;
+                    if (tk >= 0) {
+                        const size_t kk = size_t(tk);
+                        tone = float(cr.towel_tone[kk]);
+                        const float ca = float(std::cos(cr.towel_weave_rad[kk])), sa = float(std::sin(cr.towel_weave_rad[kk]));
+                        const float ru = ca * su - sa * sv, rv = sa * su + ca * sv;
+                        su = ru, sv = rv;
+                        // The hem: a doubled band along the edge, a dark line where it folds under.
+                        const float in = float(inside), hm = float(cr.hem_mm);
+                        hem = 1.f + 0.07f * (1.f - smoothstep(hm - 0.5f, hm + 0.5f, in)) -
+                              0.3f * (1.f - smoothstep(0.f, 0.6f, std::abs(in - hm))) - 0.35f * (1.f - smoothstep(0.f, 0.8f, in));
+                        // The creases of the towel's pack: straight lines along and across the hem.
+                        const double fm = cr.towel_fold_mm[kk];
+                        const double along = -ab_d.x() * std::sin(cr.towel_psi[kk]) + ab_d.y() * std::cos(cr.towel_psi[kk]);
+                        const double fs = inside / fm + 0.37, ft = (along + cr.towel_fold_off[kk]) / fm;
+                        const double to_fold_mm = fm * std::min(std::abs(fs - std::round(fs)), std::abs(ft - std::round(ft)));
+                        crease = 1.f - smoothstep(0.f, 0.9f, float(to_fold_mm));
+                        // A towel lying on this one shades it along its edge.
+                        for (int j = tk + 1; j < cr.n_towels; ++j) {
+                            const size_t jj = size_t(j);
+                            const double sj = ab_d.x() * std::cos(cr.towel_psi[jj]) + ab_d.y() * std::sin(cr.towel_psi[jj]) - cr.towel_d[jj];
+                            if (sj > -3 && sj <= 0) shadow = std::min(shadow, float(0.6 + 0.4 * smoothstep(0.f, 3.f, float(-sj))));
+                        }
+                    }
                     const float weave = 0.5f + 0.5f * std::sin(su * 2 * float(kPi) / float(L.drape_weave_px)) *
                                                     std::sin(sv * 2 * float(kPi) / float(L.drape_weave_px));
                     const float fine = vnoise(su * 0.7f, sv * 0.7f, ns + 10);
-                    c = L.drape * (0.45f + 0.9f * fold) * (0.88f + 0.12f * weave) * (0.94f + 0.12f * fine) * float(L.exposure);
+                    c = L.drape * (0.45f + 0.9f * fold) * (0.88f + 0.12f * weave) * (0.94f + 0.12f * fine) * float(L.exposure) *
+                        (tone * hem * shadow * (1.f - 0.25f * crease));
                     break;
                 }
             }
@@ -1068,6 +1242,7 @@ PhantomCase generate_phantom_case(const PhantomSurface& S, const PhantomParams& 
           << " distance_mm=" << fmt(dist, 1) << " tilt_deg=" << fmt(tilt * 180 / kPi, 1) << " roll_deg=" << fmt(roll * 180 / kPi, 1)
           << " craniotomy_mm=" << fmt(diam, 1) << " head_radius_mm=" << fmt(cr.Rc, 0) << " distortion=" << (distorted ? "yes" : "no")
           << " gauze=" << n_gauze << " blood=" << n_blood << " veins=" << n_veins << " arteries=" << n_arteries
+          << " towels=" << cr.n_towels << " burr_holes=" << cr.n_burr << " clips=" << cr.n_clips
           << " shininess=" << fmt(L.shininess, 0) << " spec=" << fmt(L.spec) << " exposure=" << fmt(L.exposure)
           << " noise_sd=" << fmt(L.noise_sd)
           << " jpeg_quality=" << (out.jpeg ? out.jpeg_quality : (apply_jpeg_artefacts ? L.jpeg_quality : 0));

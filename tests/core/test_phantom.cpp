@@ -154,6 +154,40 @@ TEST_F(Phantom, SameSeedSameCase) {
     EXPECT_NE(a.T_camera_from_world, c.T_camera_from_world);
 }
 
+// The surgical field around the opening (towels, burr holes, scalp clips) comes from a random
+// stream of its own: adding it left every pose of a seed as it was, and the notes say what a
+// photo shows.
+TEST_F(Phantom, SurgicalFieldIsNotedAndLeavesThePoseAlone) {
+    PhantomParams p;
+    p.seed = 5;
+    p.dslr_fraction = 0.0;
+    int with_clips = 0;
+    for (int idx = 0; idx < 6; ++idx) {
+        SCOPED_TRACE("case " + std::to_string(idx));
+        const PhantomCase pc = generate_phantom_case(*surface_, p, idx);
+        auto count = [&](const std::string& key) {
+            const size_t at = pc.notes.find(" " + key + "=");
+            EXPECT_NE(at, std::string::npos) << pc.notes;
+            return at == std::string::npos ? -1 : std::stoi(pc.notes.substr(at + key.size() + 2));
+        };
+        const int towels = count("towels"), burr = count("burr_holes"), clips = count("clips");
+        EXPECT_GE(towels, 3);
+        EXPECT_LE(towels, 5);
+        EXPECT_GE(burr, 1);
+        EXPECT_LE(burr, 4);
+        EXPECT_TRUE(clips == 0 || clips >= 4) << clips;
+        with_clips += clips > 0;
+    }
+    EXPECT_GT(with_clips, 0);
+    EXPECT_LT(with_clips, 6);
+    // Seed 5, case 0 before the field was added (generated at a63ce78).
+    const PhantomCase c0 = generate_phantom_case(*surface_, p, 0);
+    const Eigen::Vector3d t = c0.T_camera_from_world.topRightCorner<3, 1>();
+    EXPECT_NEAR(t.x(), -7.162929581063061, 1e-6);
+    EXPECT_NEAR(t.y(), -12.574572239655012, 1e-6);
+    EXPECT_NEAR(t.z(), 350.9517425323447, 1e-6);
+}
+
 TEST_F(Phantom, DslrCaseIsFullSizeJpeg) {
     PhantomParams p;
     p.seed = 3;
