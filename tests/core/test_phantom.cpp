@@ -180,12 +180,15 @@ TEST_F(Phantom, SurgicalFieldIsNotedAndLeavesThePoseAlone) {
     }
     EXPECT_GT(with_clips, 0);
     EXPECT_LT(with_clips, 6);
-    // Seed 5, case 0 before the field was added (generated at a63ce78).
+    // Seed 5, case 0 before the field was added (generated at a63ce78, release build). Within
+    // 0.1 mm: the sanitized build (-O1, no -march=native) builds the brain surface with other
+    // rounding and lands 0.01 mm away; a draw taken from the case's main stream would move the
+    // camera by centimetres (distance 200-450 mm, tilt, roll).
     const PhantomCase c0 = generate_phantom_case(*surface_, p, 0);
     const Eigen::Vector3d t = c0.T_camera_from_world.topRightCorner<3, 1>();
-    EXPECT_NEAR(t.x(), -7.162929581063061, 1e-6);
-    EXPECT_NEAR(t.y(), -12.574572239655012, 1e-6);
-    EXPECT_NEAR(t.z(), 350.9517425323447, 1e-6);
+    EXPECT_NEAR(t.x(), -7.162929581063061, 0.1);
+    EXPECT_NEAR(t.y(), -12.574572239655012, 0.1);
+    EXPECT_NEAR(t.z(), 350.9517425323447, 0.1);
 }
 
 TEST_F(Phantom, DslrCaseIsFullSizeJpeg) {
