@@ -157,6 +157,23 @@ struct Crani {
     int n_clips = 0;
     double clip_th0 = 0, clip_len = 9, clip_w = 4;
     Eigen::Array3f clip_col = Eigen::Array3f(0.05f, 0.15f, 0.6f);
+    // The opened dura, folded back over the bone on one side: centre angle, half arc (rad) and
+    // how far it reaches over the bone (mm); flap_w = 0 for none.
+    double flap_th = 0, flap_half = 1, flap_w = 0;
+
+    /// Whether (a, b), outside the bone cut, lies under the reflected dural flap; `edge_mm`: how
+    /// far inside the flap's free edge.
+    bool flap_at(const Vec2& ab, double* edge_mm) const {
+        if (flap_w <= 0) return false;
+        const double th = std::atan2(ab.y(), ab.x());
+        const double dth = std::remainder(th - flap_th, 2 * kPi);
+        if (std::abs(dth) >= flap_half) return false;
+        const double q = dth / flap_half;
+        const double reach = r_bone(th) + flap_w * std::sqrt(1 - q * q);
+        if (ab.norm() >= reach) return false;
+        if (edge_mm) *edge_mm = reach - ab.norm();
+        return true;
+    }
 
     Vec2 ab(const Vec3& p, double* height = nullptr) const {
         const Vec3 v = p - O;
@@ -401,7 +418,7 @@ Look random_look(Rng& r) {
     return L;
 }
 
-enum Layer : uint8_t { kDrape = 0, kSkin, kSkinCut, kBone, kDura, kBoneWall, kCortex, kDark, kBurr, kClip };
+enum Layer : uint8_t { kDrape = 0, kSkin, kSkinCut, kBone, kDura, kBoneWall, kCortex, kDark, kBurr, kClip, kDuraFlap };
 
 // ---------------------------------------------------------------- helpers
 /// Camera distortion coefficients for a consumer lens.
@@ -561,6 +578,11 @@ PhantomCase generate_phantom_case(const PhantomSurface& S, const PhantomParams& 
             cr.clip_w = rx.uni(3.5, 5);
             const Eigen::Array3f cols[3] = {{0.06f, 0.16f, 0.42f}, {0.62f, 0.64f, 0.62f}, {0.06f, 0.06f, 0.07f}};
             cr.clip_col = cols[rx.integer(0, 2)] * float(rx.uni(0.85, 1.15));
+        }
+        if (rx.chance(0.7)) {
+            cr.flap_th = rx.uni(0, 2 * kPi);
+            cr.flap_half = rx.uni(0.5, 1.2);
+            cr.flap_w = std::min(rx.uni(6, 20), cr.bone_w + 2);
         }
     }
 
@@ -752,7 +774,10 @@ PhantomCase generate_phantom_case(const PhantomSurface& S, const PhantomParams& 
                 if (!hb || rho_b > cr.r_skin(th_b)) {
                     lay = cr.clip_at(ab_s, nullptr) ? kClip : kSkinCut;  // the cut scalp wall
                 } else if (rho_b > cr.r_bone(th_b)) {
-                    lay = cr.burr_edge(ab_b) < 0 ? kBurr : rho_b < cr.r_bone(th_b) + cr.dura_w ? kDura : kBone;
+                    lay = cr.flap_at(ab_b, nullptr) ? kDuraFlap
+                          : cr.burr_edge(ab_b) < 0  ? kBurr
+                          : rho_b < cr.r_bone(th_b) + cr.dura_w ? kDura
+                                                                : kBone;
                 } else if (rb.triangle[i] >= 0) {
                     const Vec3 p = interpolate_at(rb, S.mesh.triangles, S.mesh.vertices, u, v, Eigen::Vector3f(0, 0, 0)).cast<double>();
                     const Vec2 abc = cr.ab(p);
@@ -767,7 +792,7 @@ PhantomCase generate_phantom_case(const PhantomSurface& S, const PhantomParams& 
                 // What the pixel shows, for the depth of field: the brain, the bone sphere or the
                 // skin sphere (the drapes lie a little beyond the skin they cover).
                 const bool on_brain = lay == kCortex || lay == kBoneWall;
-                const bool on_bone = lay == kBone || lay == kDura || lay == kBurr;
+                const bool on_bone = lay == kBone || lay == kDura || lay == kBurr || lay == kDuraFlap;
                 if (on_brain || on_bone || hs) {
                     const Vec3& q = on_brain ? pworld[i] : on_bone ? qb : qs;
                     depth_cam[i] = float((R * q + T.topRightCorner<3, 1>()).z()) + (lay == kDrape ? 15.f : 0.f);
@@ -834,6 +859,24 @@ PhantomCase generate_phantom_case(const PhantomSurface& S, const PhantomParams& 
                         const Col floor = mix(L.dura, L.blood, 0.25f + 0.3f * t);
                         c = shade(floor, sph, qb, L.spec * 0.3, 40) * (0.12f + 0.25f * smoothstep(0.3f, 1.f, q));
                     }
+                    break;
+                }
+                case kDuraFlap: {
+                    // The opened dura folded back over the bone: a wrinkled, glossy sheet with
+                    // meningeal vessels, its cut edge a darker line.
+                    double edge = 5;
+                    cr.flap_at(ab_b, &edge);
+                    const Vec3 sph = (qb - cr.O).normalized();
+                    const float w1 = fbm(float(ab_b.x() / 2.5), float(ab_b.y() / 2.5), ns + 16, 3);
+                    const float w2 = fbm(float(ab_b.x() / 2.5) + 7.f, float(ab_b.y() / 2.5) - 3.f, ns + 16, 3);
+                    const Vec3 nrm = (sph + 0.5 * double(w1 - 0.5f) * cr.e1 + 0.5 * double(w2 - 0.5f) * cr.e2).normalized();
+                    // Reflected dura is greyer and bluer than the bone beside it.
+                    const Col grey_blue(0.55f, 0.58f, 0.66f);
+                    Col alb = mix(L.dura, grey_blue, 0.35f) * (0.75f + 0.3f * fbm(float(ab_b.x() / 6), float(ab_b.y() / 6), ns + 17, 3));
+                    const float mv = 1.f - std::abs(2.f * fbm(float(ab_b.x() / 14), float(ab_b.y() / 14), ns + 18, 2) - 1.f);
+                    alb = mix(alb, L.artery * 0.75f, 0.6f * smoothstep(0.965f, 0.99f, mv));
+                    alb *= float(0.55 + 0.45 * smoothstep(0.f, 1.5f, float(edge)));
+                    c = shade(alb, nrm, qb, L.spec * 0.8, 60);
                     break;
                 }
                 case kClip: {
@@ -1243,6 +1286,7 @@ PhantomCase generate_phantom_case(const PhantomSurface& S, const PhantomParams& 
           << " craniotomy_mm=" << fmt(diam, 1) << " head_radius_mm=" << fmt(cr.Rc, 0) << " distortion=" << (distorted ? "yes" : "no")
           << " gauze=" << n_gauze << " blood=" << n_blood << " veins=" << n_veins << " arteries=" << n_arteries
           << " towels=" << cr.n_towels << " burr_holes=" << cr.n_burr << " clips=" << cr.n_clips
+          << " dural_flap=" << (cr.flap_w > 0 ? "yes" : "no")
           << " shininess=" << fmt(L.shininess, 0) << " spec=" << fmt(L.spec) << " exposure=" << fmt(L.exposure)
           << " noise_sd=" << fmt(L.noise_sd)
           << " jpeg_quality=" << (out.jpeg ? out.jpeg_quality : (apply_jpeg_artefacts ? L.jpeg_quality : 0));
