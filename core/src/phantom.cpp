@@ -913,9 +913,14 @@ PhantomCase generate_phantom_case(const PhantomSurface& S, const PhantomParams& 
                     if (hs && cr.n_towels > 0) c *= float(0.55 + 0.45 * smoothstep(0.f, 2.5f, float(cr.r_drape(th_s) - rho_s)));
                     break;
                 }
-                case kDark:
-                    c = L.bone_wall * 0.08f;
+                case kDark: {
+                    // Where the brain has fallen away from the bone: the dura lining the skull, deep
+                    // and in shadow, with some blood; mottled, not a flat black.
+                    const float su = float(u / render_scale), sv = float(v / render_scale);
+                    const float t = fbm(su / 45.f, sv / 45.f, ns + 19, 2);
+                    c = mix(L.dura * 0.06f, L.blood * 0.25f, 0.8f * smoothstep(0.4f, 0.75f, t)) * (0.7f + 0.6f * t);
                     break;
+                }
                 default: {  // drapes: towels with hems, cloth weave, folds and creases, in image space
                     float su = float(u / render_scale), sv = float(v / render_scale);
                     const float fold = fbm(su / 180.f, sv / 180.f, ns + 9, 3);
