@@ -231,7 +231,10 @@ struct Crani {
         for (int k = 0; k < n_burr; ++k) {
             const Vec2 c = burr_rho[size_t(k)] * Vec2(std::cos(burr_th[size_t(k)]), std::sin(burr_th[size_t(k)]));
             const double d = (ab - c).norm() - burr_r[size_t(k)];
-            if (d < best) best = d, radius ? (void)(*radius = burr_r[size_t(k)]) : (void)0;
+            if (d < best) {
+                best = d;
+                if (radius) *radius = burr_r[size_t(k)];
+            }
         }
         return best;
     }
