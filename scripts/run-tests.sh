@@ -4,7 +4,7 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 bash scripts/setup.sh
 # A full disk fails a link halfway with an obscure message; say up front when space is short.
-# Both trees from scratch take about 5.5 GB (release 1.4, ASan+UBSan 4.1; 28 Nov 2026), ccache and the UI's
+# Both trees from scratch take about 6 GB (release 1.4, ASan+UBSan 4.3; 28 Nov 2026), ccache and the UI's
 # node_modules aside.
 need_gb=7
 avail_kb=$(df -Pk . | awk 'NR == 2 { print $4 }')
