@@ -160,6 +160,8 @@ struct Crani {
     // The opened dura, folded back over the bone on one side: centre angle, half arc (rad) and
     // how far it reaches over the bone (mm); flap_w = 0 for none.
     double flap_th = 0, flap_half = 1, flap_w = 0;
+    // A milky arachnoid bridging the sulci (0: clear), as over an older or inflamed brain.
+    double veil = 0;
 
     /// Whether (a, b), outside the bone cut, lies under the reflected dural flap; `edge_mm`: how
     /// far inside the flap's free edge.
@@ -587,6 +589,7 @@ PhantomCase generate_phantom_case(const PhantomSurface& S, const PhantomParams& 
             cr.flap_half = rx.uni(0.5, 1.2);
             cr.flap_w = std::min(rx.uni(6, 20), cr.bone_w + 2);
         }
+        if (rx.chance(0.4)) cr.veil = rx.uni(0.2, 0.6);
     }
 
     // ---- pose: near the outward normal, tilted, random roll
@@ -816,6 +819,11 @@ PhantomCase generate_phantom_case(const PhantomSurface& S, const PhantomParams& 
                     alb = mix(alb, L.small_vessel, float(L.mottle) * 0.9f * smoothstep(0.45f, 0.8f, cap));
                     // Sulci: darker, redder (pia, CSF and small vessels in the groove).
                     alb = mix(alb, L.sulcus, 0.85f * smoothstep(0.6f, 3.5f, sd));
+                    // The arachnoid spans the sulci: a pale, bluish veil that hazes them over.
+                    if (cr.veil > 0) {
+                        const float haze = float(cr.veil) * (0.6f + 0.4f * fbm(float(ab.x() / 3), float(ab.y() / 3), ns + 20, 2));
+                        alb = mix(alb, mix(L.cortex, Col(0.85f, 0.86f, 0.92f), 0.5f), haze * smoothstep(0.4f, 2.5f, sd));
+                    }
                     alb = mix(alb, L.small_vessel, 0.55f * sa);
                     // Blood is deepest on a vessel's axis: darker there, translucent at the edges.
                     const float vt = tx.sample(tx.vein_tube, ab), at = tx.sample(tx.artery_tube, ab);
@@ -1294,7 +1302,7 @@ PhantomCase generate_phantom_case(const PhantomSurface& S, const PhantomParams& 
           << " craniotomy_mm=" << fmt(diam, 1) << " head_radius_mm=" << fmt(cr.Rc, 0) << " distortion=" << (distorted ? "yes" : "no")
           << " gauze=" << n_gauze << " blood=" << n_blood << " veins=" << n_veins << " arteries=" << n_arteries
           << " towels=" << cr.n_towels << " burr_holes=" << cr.n_burr << " clips=" << cr.n_clips
-          << " dural_flap=" << (cr.flap_w > 0 ? "yes" : "no")
+          << " dural_flap=" << (cr.flap_w > 0 ? "yes" : "no") << " arachnoid_veil=" << fmt(cr.veil)
           << " shininess=" << fmt(L.shininess, 0) << " spec=" << fmt(L.spec) << " exposure=" << fmt(L.exposure)
           << " noise_sd=" << fmt(L.noise_sd)
           << " jpeg_quality=" << (out.jpeg ? out.jpeg_quality : (apply_jpeg_artefacts ? L.jpeg_quality : 0));

@@ -154,7 +154,8 @@ TEST_F(Phantom, SameSeedSameCase) {
     EXPECT_NE(a.T_camera_from_world, c.T_camera_from_world);
 }
 
-// The surgical field around the opening (towels, burr holes, scalp clips, the reflected dura) comes from a random
+// The surgical field around the opening (towels, burr holes, scalp clips, the reflected dura, the
+// arachnoid's veil) comes from a random
 // stream of its own: adding it left every pose of a seed as it was, and the notes say what a
 // photo shows.
 TEST_F(Phantom, SurgicalFieldIsNotedAndLeavesThePoseAlone) {
@@ -177,6 +178,7 @@ TEST_F(Phantom, SurgicalFieldIsNotedAndLeavesThePoseAlone) {
         EXPECT_LE(burr, 4);
         EXPECT_TRUE(clips == 0 || clips >= 4) << clips;
         EXPECT_NE(pc.notes.find(" dural_flap="), std::string::npos) << pc.notes;
+        EXPECT_NE(pc.notes.find(" arachnoid_veil="), std::string::npos) << pc.notes;
         with_clips += clips > 0;
     }
     EXPECT_GT(with_clips, 0);
