@@ -178,4 +178,35 @@ std::array<double, 2> robust_range(const Volume& v, const LabelVolume* mask) {
     return {lo, hi > lo ? hi : lo + 1};
 }
 
+std::array<double, 3> three_class_means(const std::vector<float>& values) {
+    if (values.empty()) return {0.0, 0.0, 0.0};
+    std::vector<float> v = values;
+    std::sort(v.begin(), v.end());
+    auto pct = [&](double p) { return double(v[size_t(p * double(v.size() - 1))]); };
+    std::array<double, 3> m{pct(0.1), pct(0.45), pct(0.85)};
+    // Histogram-based Lloyd iterations.
+    const double lo = pct(0.001), hi = std::max(pct(0.999), pct(0.001) + 1e-6);
+    constexpr int nb = 512;
+    std::vector<double> hist(nb, 0.0);
+    for (float x : v) {
+        const int b = std::clamp(int((x - lo) / (hi - lo) * nb), 0, nb - 1);
+        hist[size_t(b)] += 1;
+    }
+    for (int it = 0; it < 50; ++it) {
+        std::array<double, 3> s{0, 0, 0}, c{0, 0, 0};
+        for (int b = 0; b < nb; ++b) {
+            const double x = lo + (b + 0.5) * (hi - lo) / nb;
+            int best = 0;
+            for (int q = 1; q < 3; ++q)
+                if (std::abs(x - m[size_t(q)]) < std::abs(x - m[size_t(best)])) best = q;
+            s[size_t(best)] += x * hist[size_t(b)];
+            c[size_t(best)] += hist[size_t(b)];
+        }
+        for (int q = 0; q < 3; ++q)
+            if (c[size_t(q)] > 0) m[size_t(q)] = s[size_t(q)] / c[size_t(q)];
+        std::sort(m.begin(), m.end());
+    }
+    return m;
+}
+
 }  // namespace cf

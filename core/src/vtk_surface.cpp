@@ -29,6 +29,7 @@
 #include <system_error>
 
 #include "cortexfuse/core/error.hpp"
+#include "cortexfuse/core/transfer_function.hpp"
 #include "vtk_surface_internal.hpp"
 
 namespace cf {
@@ -68,36 +69,6 @@ void gaussian_blur3(std::vector<float>& a, int nx, int ny, int nz, double sigma)
     }
 }
 
-/// 1D k-means with 3 classes (CSF, grey, white matter) on intensities; returns sorted means.
-std::array<double, 3> three_class_means(const std::vector<float>& values) {
-    std::vector<float> v = values;
-    std::sort(v.begin(), v.end());
-    auto pct = [&](double p) { return double(v[size_t(p * double(v.size() - 1))]); };
-    std::array<double, 3> m{pct(0.1), pct(0.45), pct(0.85)};
-    // Histogram-based Lloyd iterations.
-    const double lo = pct(0.001), hi = std::max(pct(0.999), pct(0.001) + 1e-6);
-    constexpr int nb = 512;
-    std::vector<double> hist(nb, 0.0);
-    for (float x : v) {
-        const int b = std::clamp(int((x - lo) / (hi - lo) * nb), 0, nb - 1);
-        hist[size_t(b)] += 1;
-    }
-    for (int it = 0; it < 50; ++it) {
-        std::array<double, 3> s{0, 0, 0}, c{0, 0, 0};
-        for (int b = 0; b < nb; ++b) {
-            const double x = lo + (b + 0.5) * (hi - lo) / nb;
-            int best = 0;
-            for (int q = 1; q < 3; ++q)
-                if (std::abs(x - m[size_t(q)]) < std::abs(x - m[size_t(best)])) best = q;
-            s[size_t(best)] += x * hist[size_t(b)];
-            c[size_t(best)] += hist[size_t(b)];
-        }
-        for (int q = 0; q < 3; ++q)
-            if (c[size_t(q)] > 0) m[size_t(q)] = s[size_t(q)] / c[size_t(q)];
-        std::sort(m.begin(), m.end());
-    }
-    return m;
-}
 
 SurfaceMesh from_polydata(vtkPolyData* pd, bool take_normals) {
     SurfaceMesh m;

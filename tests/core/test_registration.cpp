@@ -383,3 +383,91 @@ TEST(Registration, APoseLookingAwayFromTheBrainIsAClearInputError) {
     in.initial_pose = flip * f.c.spec.truth->T_camera_from_world;
     EXPECT_THROW(reg.run(in), InputError);
 }
+
+namespace {
+
+/// A layered ball on a 1 mm grid: white matter 100 inside r = 26 mm, grey matter 60 from 28 to
+/// 31 mm, CSF `csf` from 33 to 37 mm, linear between the layers and down to 0 at 38 mm; the
+/// mask ends at 37.5 mm. Between grey matter and CSF (31-33 mm) the intensity at fraction f of
+/// the way from CSF to grey lies at r = 33 - 2 f whatever `csf` is.
+void layered_ball(double csf, Volume& v, LabelVolume& mask) {
+    VolumeGeometry g;
+    g.dims = {90, 90, 90};
+    g.spacing_mm = Eigen::Vector3d(1, 1, 1);
+    g.origin_mm = Eigen::Vector3d(-44.5, -44.5, -44.5);
+    v.geom = g;
+    mask.geom = g;
+    v.voxels.assign(g.voxel_count(), 0.f);
+    mask.voxels.assign(g.voxel_count(), 0);
+    auto lerp = [](double r, double r0, double a, double r1, double b) { return a + (b - a) * (r - r0) / (r1 - r0); };
+    for (int k = 0; k < g.dims[2]; ++k)
+        for (int j = 0; j < g.dims[1]; ++j)
+            for (int i = 0; i < g.dims[0]; ++i) {
+                const double r = g.world_from_index(Eigen::Vector3d(i, j, k)).norm();
+                double x = 0;
+                if (r <= 26) x = 100;
+                else if (r <= 28) x = lerp(r, 26, 100, 28, 60);
+                else if (r <= 31) x = 60;
+                else if (r <= 33) x = lerp(r, 31, 60, 33, csf);
+                else if (r <= 37) x = csf;
+                else if (r <= 38) x = lerp(r, 37, csf, 38, 0);
+                v.voxels[g.linear(i, j, k)] = float(x);
+                mask.voxels[g.linear(i, j, k)] = r <= 37.5 ? 1 : 0;
+            }
+}
+
+/// Depth of the rendered surface along the optical axis, from 200 mm in front of the ball.
+double surface_depth_mm(Registration& reg) {
+    Intrinsics K;
+    K.width = K.height = 41;
+    K.fx = K.fy = 200;
+    K.cx = K.cy = 20;
+    Pose T = Pose::Identity();
+    T(2, 3) = 200;  // the ball's centre (world origin) 200 mm along the axis
+    RenderOptions o;
+    o.surface_only = true;
+    o.sample_distance_mm = 0.5;
+    o.want_rgb = false;
+    RenderImage im;
+    reg.renderer().render(K, T, o, im);
+    const size_t c = size_t(20) * 41 + 20;
+    EXPECT_TRUE(im.coverage[c]);
+    return im.depth_mm[c];
+}
+
+}  // namespace
+
+// The rendered surface is placed by tissue, not by a fixed fraction of the intensity range: a
+// scan whose CSF is brighter (the sagittal DICOM series: a fixed 0.42 of its range falls below
+// its CSF mean) keeps the surface between CSF and grey matter where the fraction says.
+TEST(Registration, SurfaceTissueFractionPlacesTheSurfaceBetweenCsfAndGreyWhateverTheContrast) {
+    Volume dark, bright;
+    LabelVolume mask;
+    layered_ball(20, dark, mask);
+    layered_ball(45, bright, mask);
+    RegistrationParams p = RegistrationParams::defaults();
+    p.surface_tissue_fraction = 0.5;
+    Registration a(dark, mask, p), b(bright, mask, p);
+    EXPECT_NEAR(a.surface_level(), 40.0, 3.0);  // CSF 20 + 0.5 * (60 - 20), from the class means
+    EXPECT_NEAR(b.surface_level(), 52.5, 3.0);
+    const double da = surface_depth_mm(a), db = surface_depth_mm(b);
+    std::printf("levels %.2f %.2f, depths %.3f %.3f mm\n", a.surface_level(), b.surface_level(), da, db);
+    // r = 33 - 2 * 0.5 = 32 mm: depth 200 - 32 = 168 mm in both (the class means are estimates).
+    EXPECT_NEAR(da, 168.0, 0.4);
+    EXPECT_NEAR(db, 168.0, 0.4);
+    // A fixed fraction of the range (the preset's own level) moves with the CSF's brightness.
+    p.surface_tissue_fraction = std::numeric_limits<double>::quiet_NaN();
+    Registration fa(dark, mask, p), fb(bright, mask, p);
+    EXPECT_TRUE(std::isnan(fa.surface_level()));
+    const double dfa = surface_depth_mm(fa), dfb = surface_depth_mm(fb);
+    std::printf("a fixed fraction of the range: depths %.3f %.3f mm\n", dfa, dfb);
+    EXPECT_GT(std::abs(dfa - dfb), 0.6);
+    // The option round-trips through JSON (null: off) and refuses nonsense.
+    p.surface_tissue_fraction = 0.45;
+    EXPECT_DOUBLE_EQ(registration_params_from_json(to_json(p), "params").surface_tissue_fraction, 0.45);
+    p.surface_tissue_fraction = std::numeric_limits<double>::quiet_NaN();
+    EXPECT_TRUE(std::isnan(registration_params_from_json(to_json(p), "params").surface_tissue_fraction));
+    nlohmann::json bad = to_json(p);
+    bad["surface_tissue_fraction"] = 3.0;
+    EXPECT_THROW(registration_params_from_json(bad, "params"), InputError);
+}

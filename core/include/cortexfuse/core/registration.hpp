@@ -9,6 +9,7 @@
 #include <nlohmann/json.hpp>
 #include <opencv2/core.hpp>
 #include <optional>
+#include <limits>
 #include <string>
 #include <vector>
 
@@ -104,6 +105,13 @@ struct RegistrationParams {
     /// a composited rendering's grey depends on where the sample lattice falls on the surface,
     /// which made the similarity saw-tooth along the viewing axis.
     bool surface_only = false;
+    /// Where the rendered surface lies, in tissue terms: the transfer function's opacity ramp
+    /// is centred on CSF + f * (grey - CSF), the class means (three_class_means()) inside the
+    /// brain mask, instead of on the preset's fixed fraction of the robust range. A fixed
+    /// fraction lands at different tissue on every scanner (0.42 of the range is f = 0.48 on the
+    /// bundled head, 0.41 on the chris and seg3d heads, -0.24, below the CSF mean, on the
+    /// sagittal DICOM series). NaN: the preset as it is.
+    double surface_tissue_fraction = std::numeric_limits<double>::quiet_NaN();
     /// What the rendering contributes to the similarity: (1 - w) * shading + w * relief, where
     /// relief is the negated depth of the first surface hit (1 unit per 10 mm); after the
     /// high-pass it is the local sulcal depth, which does not depend on where the light was.
@@ -230,10 +238,14 @@ public:
     const RegistrationParams& params() const { return params_; }
     /// The renderer used for the similarity (registration style), e.g. for depth lookups.
     Renderer& renderer() { return *renderer_; }
+    /// The intensity the rendered surface lies at (volume units) when
+    /// RegistrationParams::surface_tissue_fraction placed it; NaN otherwise.
+    double surface_level() const { return surface_level_; }
 
 private:
     RegistrationParams params_;
     std::unique_ptr<Renderer> renderer_;
+    double surface_level_ = std::numeric_limits<double>::quiet_NaN();
 };
 
 /// A case folder loaded and checked, every error naming its file: the volume, the brain mask

@@ -52,4 +52,9 @@ BakedTransferFunction bake(const TransferFunction& tf, double range_lo, double r
 /// The robust intensity range used by normalized transfer functions.
 std::array<double, 2> robust_range(const Volume& v, const LabelVolume* mask = nullptr);
 
+/// Means of three intensity classes (CSF, grey matter, white matter on a T1 inside a brain
+/// mask), sorted: a 1D k-means over a histogram of `values`. Used to place a surface between
+/// CSF and grey matter whatever the scanner's scaling and contrast.
+std::array<double, 3> three_class_means(const std::vector<float>& values);
+
 }  // namespace cf
