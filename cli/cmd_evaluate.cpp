@@ -176,7 +176,6 @@ void add_evaluate(CLI::App& app) {
             std::map<std::string, std::unique_ptr<Registration>> engines;
             std::map<std::string, std::unique_ptr<PhantomSurface>> surfaces;
             // The registration's surface rendering, to measure how far it lies from the true mesh.
-            std::map<std::string, std::unique_ptr<Renderer>> surface_renderers;
             const int total = int(cases.size()) * trials;
             int done = 0;
             for (const auto& dir : cases) {
@@ -193,8 +192,6 @@ void add_evaluate(CLI::App& app) {
                 const Truth& truth = *c.spec.truth;
                 const Intrinsics& K = c.spec.camera;
                 const PoseErrors e_true = pose_errors(truth, K, truth.T_camera_from_world, mesh);
-                auto& sr = surface_renderers[key];
-                if (!sr) sr = make_cpu_renderer(c.volume, preset_transfer_function(params.transfer_function), &c.mask);
                 SurfaceOffset offset;
                 {
                     const double s = std::min(1.0, 375.0 / K.width);
@@ -204,7 +201,8 @@ void add_evaluate(CLI::App& app) {
                     ro.sample_distance_mm = params.sample_distance_mm;
                     ro.want_rgb = false;
                     const cv::Mat roi = c.photo.roi ? roi_mask(*c.photo.roi, Ks.width, Ks.height, s) : cv::Mat();
-                    offset = surface_offset(*sr, ro, mesh, Ks, truth.T_camera_from_world, roi);
+                    // The engine's own renderer: its surface level (surface_tissue_fraction) is the one compared.
+                    offset = surface_offset(engine->renderer(), ro, mesh, Ks, truth.T_camera_from_world, roi);
                 }
                 floor.mre.push_back(e_true.mre_mm);
                 floor.tre.push_back(e_true.tre_mm);
