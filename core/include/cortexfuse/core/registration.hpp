@@ -5,11 +5,11 @@
 // result), every stage reports progress, can be cancelled, and is timed.
 #include <array>
 #include <functional>
+#include <limits>
 #include <memory>
 #include <nlohmann/json.hpp>
 #include <opencv2/core.hpp>
 #include <optional>
-#include <limits>
 #include <string>
 #include <vector>
 
