@@ -69,7 +69,6 @@ void gaussian_blur3(std::vector<float>& a, int nx, int ny, int nz, double sigma)
     }
 }
 
-
 SurfaceMesh from_polydata(vtkPolyData* pd, bool take_normals) {
     SurfaceMesh m;
     const vtkIdType np = pd->GetNumberOfPoints();

@@ -470,4 +470,6 @@ TEST(Registration, SurfaceTissueFractionPlacesTheSurfaceBetweenCsfAndGreyWhateve
     nlohmann::json bad = to_json(p);
     bad["surface_tissue_fraction"] = 3.0;
     EXPECT_THROW(registration_params_from_json(bad, "params"), InputError);
+    bad["surface_tissue_fraction"] = "half";  // a wrong type is named as an input error too
+    EXPECT_THROW(registration_params_from_json(bad, "params"), InputError);
 }
