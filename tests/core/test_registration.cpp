@@ -2,8 +2,10 @@
 // (a rigid result, stages as configured, progress, cancel), whatever its accuracy.
 #include <gtest/gtest.h>
 
+#include <cmath>
 #include <filesystem>
 #include <map>
+#include <opencv2/imgproc.hpp>
 #include <thread>
 
 #include "cortexfuse/core/case.hpp"
@@ -472,4 +474,59 @@ TEST(Registration, SurfaceTissueFractionPlacesTheSurfaceBetweenCsfAndGreyWhateve
     EXPECT_THROW(registration_params_from_json(bad, "params"), InputError);
     bad["surface_tissue_fraction"] = "half";  // a wrong type is named as an input error too
     EXPECT_THROW(registration_params_from_json(bad, "params"), InputError);
+}
+
+// A pool of blood can cover half the opening. The plain median and MAD of the ROI's saturation
+// then sit between pia and blood, and the MAD spans both: nothing was dropped, and NMI compared
+// the featureless pool with the sulci the MRI has beneath it.
+TEST(PhotoChannel, APoolOfBloodOverHalfTheCortexIsDroppedAndThePiaKept) {
+    const int w = 240, h = 160;
+    cv::Mat photo(h, w, CV_8UC3), roi(h, w, CV_8U, cv::Scalar(0)), pool(h, w, CV_8U, cv::Scalar(0));
+    cv::RNG rng(7);
+    for (int y = 0; y < h; ++y)
+        for (int x = 0; x < w; ++x) {
+            // Pia: pink (saturation about 0.3) with a shading trend and noise.
+            const double v = 200 + 30 * std::sin(x * 0.08) * std::cos(y * 0.05) + rng.gaussian(3);
+            photo.at<cv::Vec3b>(y, x) = cv::Vec3b(cv::saturate_cast<uint8_t>(0.70 * v + rng.gaussian(2)),
+                                                  cv::saturate_cast<uint8_t>(0.68 * v + rng.gaussian(2)),
+                                                  cv::saturate_cast<uint8_t>(v));
+        }
+    cv::ellipse(roi, {w / 2, h / 2}, {110, 72}, 0, 0, 360, cv::Scalar(255), cv::FILLED);
+    cv::circle(pool, {w / 2 + 15, h / 2}, 62, cv::Scalar(255), cv::FILLED);
+    cv::bitwise_and(pool, roi, pool);
+    photo.setTo(cv::Scalar(18, 14, 128), pool);  // dark, fully saturated red
+    for (int i = 0; i < 5; ++i)  // vessels across the pia
+        cv::line(photo, {0, 20 + 30 * i}, {w, 40 + 25 * i}, cv::Scalar(40, 40, 170), 3);
+    const int roi_px = cv::countNonZero(roi), pool_px = cv::countNonZero(pool);
+    ASSERT_GT(pool_px, roi_px * 45 / 100);  // the blood is (nearly) half of the ROI
+
+    const PhotoChannel pc = photo_channel(photo, "grey", true, roi, 3.0);
+    cv::Mat kept_pool, pia = roi.clone(), kept_pia;
+    cv::bitwise_and(pc.valid, pool, kept_pool);
+    pia.setTo(0, pool);
+    const int pia_px = cv::countNonZero(pia);
+    cv::bitwise_and(pc.valid, pia, kept_pia);
+    EXPECT_LT(cv::countNonZero(kept_pool), pool_px / 100) << "the pool of blood is dropped";
+    EXPECT_GT(cv::countNonZero(kept_pia), pia_px * 6 / 10) << "the pia (less its vessels) is kept";
+}
+
+TEST(PhotoChannel, TissueMedianMadHoldsWithHalfTheValuesElsewhereAndMatchesThePlainOnesWithout) {
+    cv::RNG rng(11);
+    std::vector<float> pia, mixed;
+    for (int i = 0; i < 20000; ++i) pia.push_back(float(0.30 + rng.gaussian(0.02)));
+    mixed = pia;
+    for (int i = 0; i < 10000; ++i) mixed.push_back(float(rng.uniform(0.45, 0.75)));  // vessels
+    for (int i = 0; i < 9000; ++i) mixed.push_back(float(0.92 + rng.gaussian(0.01)));  // a pool of blood
+    // The plain median of `mixed` lands at the pia's upper edge and its MAD is 7 times the pia's.
+    const double sd_mad = 0.6745 * 0.02;
+    const auto [m_clean, s_clean] = tissue_median_mad(pia);
+    EXPECT_NEAR(m_clean, 0.30, 0.002);
+    EXPECT_NEAR(s_clean, sd_mad, 0.1 * sd_mad);
+    const auto [m, s] = tissue_median_mad(mixed);
+    EXPECT_NEAR(m, 0.30, 0.005);
+    EXPECT_NEAR(s, sd_mad, 0.2 * sd_mad);
+    // Too few values to have a densest quarter: the plain median and MAD.
+    const auto [m3, s3] = tissue_median_mad({0.2f, 0.4f, 0.9f});
+    EXPECT_FLOAT_EQ(m3, 0.4f);
+    EXPECT_FLOAT_EQ(s3, 0.2f);
 }

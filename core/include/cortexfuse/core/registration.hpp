@@ -11,6 +11,7 @@
 #include <opencv2/core.hpp>
 #include <optional>
 #include <string>
+#include <utility>
 #include <vector>
 
 #include "cortexfuse/core/camera.hpp"
@@ -266,5 +267,11 @@ struct PhotoChannel {
 };
 PhotoChannel photo_channel(const cv::Mat& photo_bgr_working, const std::string& channel, bool mask_glare,
                            const cv::Mat& roi_mask, double vessel_mad = 0);
+
+/// The median and median absolute deviation of the tissue's values when up to half of them are
+/// something else that lies above them (blood and vessels: more saturated): taken over the values
+/// within `window` MADs of the middle of the densest quarter that starts in the lower half. On
+/// uncontaminated values, close to the plain median and MAD.
+std::pair<float, float> tissue_median_mad(std::vector<float> values, double window = 6);
 
 }  // namespace cf
