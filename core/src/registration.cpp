@@ -155,6 +155,8 @@ void RegistrationParams::validate(const std::string& ctx) const {
     metric_from_name(metric);
     if (!(highpass_fwhm_mm >= 0 && highpass_fwhm_mm <= 200)) bad("highpass_fwhm_mm must be 0..200 (0: off)");
     if (!(vessel_mask_mad >= 0 && vessel_mask_mad <= 100)) bad("vessel_mask_mad must be 0..100 (0: off)");
+    if (!(vessel_mask_window >= 0 && vessel_mask_window <= 1000))
+        bad("vessel_mask_window must be 0..1000 (0: the plain median and MAD)");
     if (!(landmark_prior_weight >= 0) || !(landmark_prior_tolerance_px >= 0)) bad("landmark prior must be >= 0");
     if (!(sample_distance_mm >= 0.1 && sample_distance_mm <= 5)) bad("sample_distance_mm must be 0.1..5");
     if (!(roi_margin_fraction >= 0 && roi_margin_fraction <= 2)) bad("roi_margin_fraction must be 0..2");
@@ -233,6 +235,7 @@ json to_json(const RegistrationParams& p) {
     j["bins"] = p.bins;
     j["mask_glare"] = p.mask_glare;
     j["vessel_mask_mad"] = p.vessel_mask_mad;
+    j["vessel_mask_window"] = p.vessel_mask_window;
     j["highpass_fwhm_mm"] = p.highpass_fwhm_mm;
     j["landmark_prior_weight"] = p.landmark_prior_weight;
     j["landmark_prior_tolerance_px"] = p.landmark_prior_tolerance_px;
@@ -281,6 +284,7 @@ RegistrationParams registration_params_from_json(const json& j, const std::strin
         p.bins = j.value("bins", p.bins);
         p.mask_glare = j.value("mask_glare", p.mask_glare);
         p.vessel_mask_mad = j.value("vessel_mask_mad", p.vessel_mask_mad);
+        p.vessel_mask_window = j.value("vessel_mask_window", p.vessel_mask_window);
         p.highpass_fwhm_mm = j.value("highpass_fwhm_mm", p.highpass_fwhm_mm);
         p.landmark_prior_weight = j.value("landmark_prior_weight", p.landmark_prior_weight);
         p.landmark_prior_tolerance_px = j.value("landmark_prior_tolerance_px", p.landmark_prior_tolerance_px);
@@ -384,7 +388,8 @@ std::pair<float, float> tissue_median_mad(std::vector<float> values, double wind
     // MAD. A pool of blood is as uniform as the pia, but always more saturated, so the interval
     // must start in the lower half of the values. The median and MAD are then taken over the
     // values within `window` such MADs of its middle: on a photo without blood, nearly all of
-    // them.
+    // them. The pia's own saturation has a long upper tail (shading); a window of 6 cut into it,
+    // and the sulci's shading went from the similarity with it (seg3d protocol 39 -> 36 of 40).
     std::sort(values.begin(), values.end());
     const size_t n = values.size(), k = std::max<size_t>(1, n / 4);
     size_t best = 0;
@@ -400,7 +405,7 @@ std::pair<float, float> tissue_median_mad(std::vector<float> values, double wind
 }
 
 PhotoChannel photo_channel(const cv::Mat& bgr, const std::string& channel, bool mask_glare, const cv::Mat& roi,
-                           double vessel_mad) {
+                           double vessel_mad, double vessel_window) {
     CV_Assert(bgr.type() == CV_8UC3);
     PhotoChannel out;
     out.channel.create(bgr.size(), CV_32F);
@@ -436,10 +441,11 @@ PhotoChannel photo_channel(const cv::Mat& bgr, const std::string& channel, bool 
         // Vessels and blood: not in the MRI. They are more saturated or darker than the pia, so
         // pixels whose saturation or darkness stands out from the ROI's by more than `vessel_mad`
         // median absolute deviations are dropped (adapts to each photo's tint and exposure). The
-        // saturation's by tissue_median_mad(), which holds when blood or vessels cover half the
-        // ROI. The brightness keeps the plain median and MAD over every valid pixel: taken over
+        // saturation's by tissue_median_mad() (unless `vessel_window` is 0), which holds when
+        // blood or vessels cover half the ROI. The brightness keeps the plain median and MAD over every valid pixel: taken over
         // the pia alone, its MAD narrowed and the cut took in the sulci's shading, which is what
-        // the similarity needs (ev8 protocol 0.995 -> 1.075 mm, against 0.905 this way).
+        // the similarity needs (ev8 protocol, window 6: 1.075 mm that way, 0.905 this way, 0.995
+        // before either).
         std::vector<float> sat, val;
         cv::Mat S(bgr.size(), CV_32F), V(bgr.size(), CV_32F);
         for (int y = 0; y < bgr.rows; ++y) {
@@ -455,7 +461,8 @@ PhotoChannel photo_channel(const cv::Mat& bgr, const std::string& channel, bool 
                 }
             }
         }
-        const auto [s_med, s_mad] = tissue_median_mad(std::move(sat));
+        const auto [s_med, s_mad] =
+            vessel_window > 0 ? tissue_median_mad(std::move(sat), vessel_window) : median_mad(std::move(sat));
         const float s_max = s_med + float(vessel_mad) * s_mad;
         const auto [v_med, v_mad] = median_mad(std::move(val));
         cv::Mat vessel(bgr.size(), CV_8U, cv::Scalar(0));
@@ -574,7 +581,8 @@ public:
                 roi = roi(crop).clone();
             }
         }
-        L.photo = photo_channel(small, p_.photo_channel, p_.mask_glare, roi, p_.vessel_mask_mad);
+        L.photo = photo_channel(small, p_.photo_channel, p_.mask_glare, roi, p_.vessel_mask_mad,
+                                p_.vessel_mask_window);
         if (cv::countNonZero(L.photo.valid) < 50)
             throw InputError("photo", "fewer than 50 usable pixels in the ROI at " + std::to_string(w) + " px width (all glare or drapes?)");
         return levels_.emplace(width, std::move(L)).first->second;

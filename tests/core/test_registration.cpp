@@ -216,6 +216,12 @@ TEST(Registration, ParametersRoundTripAndRejectNonsense) {
     bad = to_json(p);
     bad["sulcal_lo_mm"] = 4.0;  // above sulcal_hi_mm
     EXPECT_THROW(registration_params_from_json(bad, "params"), InputError);
+    bad = to_json(p);
+    bad["vessel_mask_window"] = -1;
+    EXPECT_THROW(registration_params_from_json(bad, "params"), InputError);
+    bad = to_json(RegistrationParams::defaults());
+    bad["vessel_mask_window"] = 0;  // the plain median and MAD: allowed, and kept
+    EXPECT_EQ(registration_params_from_json(bad, "params").vessel_mask_window, 0);
 }
 
 TEST(Registration, ScreensEveryStartThenSearchesOnlyTheKeptOnesAndRefinesTheWinner) {
@@ -500,7 +506,7 @@ TEST(PhotoChannel, APoolOfBloodOverHalfTheCortexIsDroppedAndThePiaKept) {
     const int roi_px = cv::countNonZero(roi), pool_px = cv::countNonZero(pool);
     ASSERT_GT(pool_px, roi_px * 45 / 100);  // the blood is (nearly) half of the ROI
 
-    const PhotoChannel pc = photo_channel(photo, "grey", true, roi, 3.0);
+    const PhotoChannel pc = photo_channel(photo, "grey", true, roi, 3.0, RegistrationParams{}.vessel_mask_window);
     cv::Mat kept_pool, pia = roi.clone(), kept_pia;
     cv::bitwise_and(pc.valid, pool, kept_pool);
     pia.setTo(0, pool);
@@ -508,6 +514,11 @@ TEST(PhotoChannel, APoolOfBloodOverHalfTheCortexIsDroppedAndThePiaKept) {
     cv::bitwise_and(pc.valid, pia, kept_pia);
     EXPECT_LT(cv::countNonZero(kept_pool), pool_px / 100) << "the pool of blood is dropped";
     EXPECT_GT(cv::countNonZero(kept_pia), pia_px * 6 / 10) << "the pia (less its vessels) is kept";
+
+    // The plain median and MAD (vessel_mask_window 0) keep nearly all of the pool: what failed.
+    const PhotoChannel plain = photo_channel(photo, "grey", true, roi, 3.0, 0);
+    cv::bitwise_and(plain.valid, pool, kept_pool);
+    EXPECT_GT(cv::countNonZero(kept_pool), pool_px * 9 / 10);
 }
 
 TEST(PhotoChannel, TissueMedianMadHoldsWithHalfTheValuesElsewhereAndMatchesThePlainOnesWithout) {
@@ -515,18 +526,20 @@ TEST(PhotoChannel, TissueMedianMadHoldsWithHalfTheValuesElsewhereAndMatchesThePl
     std::vector<float> pia, mixed;
     for (int i = 0; i < 20000; ++i) pia.push_back(float(0.30 + rng.gaussian(0.02)));
     mixed = pia;
-    for (int i = 0; i < 10000; ++i) mixed.push_back(float(rng.uniform(0.45, 0.75)));  // vessels
-    for (int i = 0; i < 9000; ++i) mixed.push_back(float(0.92 + rng.gaussian(0.01)));  // a pool of blood
-    // The plain median of `mixed` lands at the pia's upper edge and its MAD is 7 times the pia's.
+    // A pool of blood and dark vessels as many values as the pia, far above it (more than the
+    // window of 15 MADs, which the densest quarter overestimates twofold when half the values are
+    // elsewhere). The plain median of `mixed` lands between the two, its MAD over 20 times the pia's.
+    for (int i = 0; i < 15000; ++i) mixed.push_back(float(0.92 + rng.gaussian(0.01)));
+    for (int i = 0; i < 5000; ++i) mixed.push_back(float(rng.uniform(0.8, 0.9)));
     const double sd_mad = 0.6745 * 0.02;
-    const auto [m_clean, s_clean] = tissue_median_mad(pia);
+    const auto [m_clean, s_clean] = tissue_median_mad(pia, 15);
     EXPECT_NEAR(m_clean, 0.30, 0.002);
     EXPECT_NEAR(s_clean, sd_mad, 0.1 * sd_mad);
-    const auto [m, s] = tissue_median_mad(mixed);
+    const auto [m, s] = tissue_median_mad(mixed, 15);
     EXPECT_NEAR(m, 0.30, 0.005);
     EXPECT_NEAR(s, sd_mad, 0.2 * sd_mad);
     // Too few values to have a densest quarter: the plain median and MAD.
-    const auto [m3, s3] = tissue_median_mad({0.2f, 0.4f, 0.9f});
+    const auto [m3, s3] = tissue_median_mad({0.2f, 0.4f, 0.9f}, 15);
     EXPECT_FLOAT_EQ(m3, 0.4f);
     EXPECT_FLOAT_EQ(s3, 0.2f);
 }

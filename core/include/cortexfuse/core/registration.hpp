@@ -75,6 +75,10 @@ struct RegistrationParams {
     /// Drop vessels and blood: pixels more saturated or darker than the ROI's median by this many
     /// median absolute deviations. 0 disables.
     double vessel_mask_mad = 3.0;
+    /// How the vessel mask finds the pia's saturation: tissue_median_mad() with this window, which
+    /// holds when blood covers half the ROI. 0: the plain median and MAD of the ROI (before
+    /// 2026-11-29), which a pool of blood or a dense vessel network broke.
+    double vessel_mask_window = 15.0;
     /// Remove shading trends wider than this FWHM (mm at the cortex) from photo and rendering
     /// before comparing them. 0 disables.
     double highpass_fwhm_mm = 12.0;
@@ -266,12 +270,12 @@ struct PhotoChannel {
     cv::Mat valid;    // CV_8U, 255 where pixels count
 };
 PhotoChannel photo_channel(const cv::Mat& photo_bgr_working, const std::string& channel, bool mask_glare,
-                           const cv::Mat& roi_mask, double vessel_mad = 0);
+                           const cv::Mat& roi_mask, double vessel_mad = 0, double vessel_window = 15);
 
 /// The median and median absolute deviation of the tissue's values when up to half of them are
-/// something else that lies above them (blood and vessels: more saturated): taken over the values
-/// within `window` MADs of the middle of the densest quarter that starts in the lower half. On
-/// uncontaminated values, close to the plain median and MAD.
-std::pair<float, float> tissue_median_mad(std::vector<float> values, double window = 6);
+/// something else that lies well above them (blood and vessels: more saturated): taken over the
+/// values within `window` MADs (as the densest quarter that starts in the lower half estimates
+/// them) of that quarter's middle. On uncontaminated values, close to the plain median and MAD.
+std::pair<float, float> tissue_median_mad(std::vector<float> values, double window);
 
 }  // namespace cf
