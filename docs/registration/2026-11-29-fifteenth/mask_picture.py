@@ -1,13 +1,13 @@
 # Draws blood_mask.jpg: the similarity mask of core/src/registration.cpp's photo_channel(), re-done
 # in numpy for the picture (the ROI as a polygon rather than the engine's spline), before (the plain
 # median and MAD of the saturation) and after (tissue_median_mad(): the densest quarter starting in
-# the lower half, window 6). Blue: glare, gauze, drapes; yellow: vessels and blood.
+# the lower half, window 15: vessel_mask_window). Blue: glare, gauze, drapes; yellow: vessels and blood.
 # Usage: python3 mask_picture.py OUT.jpg CASE_DIR...   (Debian: apt-get install python3-opencv)
 import cv2, numpy as np, json, sys, glob
 def shorth(a, frac=0.25):
     a = np.sort(a); n = a.size; k = max(1, int(frac * n))
     w = (a[k:] - a[:n - k])[:n // 2 + 1]; i = np.argmin(w); return 0.5 * (a[i] + a[i + k]), w[i]
-def tissue(a, win=6):
+def tissue(a, win=15):
     m, L = shorth(a); sel = a[np.abs(a - m) <= win * max(1.059 * L, 1e-3)]
     med = np.median(sel); return med, max(np.median(np.abs(sel - med)), 1e-3)
 def plain(a):
