@@ -441,11 +441,11 @@ PhotoChannel photo_channel(const cv::Mat& bgr, const std::string& channel, bool 
         // Vessels and blood: not in the MRI. They are more saturated or darker than the pia, so
         // pixels whose saturation or darkness stands out from the ROI's by more than `vessel_mad`
         // median absolute deviations are dropped (adapts to each photo's tint and exposure). The
-        // saturation's by tissue_median_mad() (unless `vessel_window` is 0), which holds when
-        // blood or vessels cover half the ROI. The brightness keeps the plain median and MAD over every valid pixel: taken over
-        // the pia alone, its MAD narrowed and the cut took in the sulci's shading, which is what
-        // the similarity needs (ev8 protocol, window 6: 1.075 mm that way, 0.905 this way, 0.995
-        // before either).
+        // saturation's centre and spread come from tissue_median_mad() (unless `vessel_window`
+        // is 0), which holds when blood or vessels cover half the ROI. The brightness keeps the
+        // plain median and MAD over every valid pixel: taken over the pia alone, its MAD
+        // narrowed and the cut took in the sulci's shading, which is what the similarity needs
+        // (ev8 protocol, window 6: 1.075 mm that way, 0.905 this way, 0.995 before either).
         std::vector<float> sat, val;
         cv::Mat S(bgr.size(), CV_32F), V(bgr.size(), CV_32F);
         for (int y = 0; y < bgr.rows; ++y) {

@@ -269,6 +269,7 @@ struct PhotoChannel {
     cv::Mat channel;  // CV_32F
     cv::Mat valid;    // CV_8U, 255 where pixels count
 };
+/// `vessel_mad` and `vessel_window` as RegistrationParams' vessel_mask_mad and vessel_mask_window.
 PhotoChannel photo_channel(const cv::Mat& photo_bgr_working, const std::string& channel, bool mask_glare,
                            const cv::Mat& roi_mask, double vessel_mad = 0, double vessel_window = 15);
 
