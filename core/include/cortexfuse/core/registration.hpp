@@ -271,7 +271,8 @@ struct PhotoChannel {
 };
 /// `vessel_mad` and `vessel_window` as RegistrationParams' vessel_mask_mad and vessel_mask_window.
 PhotoChannel photo_channel(const cv::Mat& photo_bgr_working, const std::string& channel, bool mask_glare,
-                           const cv::Mat& roi_mask, double vessel_mad = 0, double vessel_window = 15);
+                           const cv::Mat& roi_mask, double vessel_mad = 0,
+                           double vessel_window = RegistrationParams{}.vessel_mask_window);
 
 /// The median and median absolute deviation of the tissue's values when up to half of them are
 /// something else that lies well above them (blood and vessels: more saturated): taken over the
