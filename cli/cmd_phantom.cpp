@@ -50,7 +50,9 @@ void add_phantom(CLI::App& app) {
     cmd->add_option("--dslr-fraction", p.dslr_fraction, "fraction of cases as DSLR-size JPEGs")->capture_default_str();
     cmd->add_option("--dslr-size", o->dslr_size, "DSLR photo size WxH")->capture_default_str();
     cmd->add_option("--gauze-prob", p.gauze_prob, "probability of gauze patties over the cortex")->capture_default_str();
-    cmd->add_option("--blood-prob", p.blood_prob, "probability of blood pools over the cortex")->capture_default_str();
+    cmd->add_option("--blood-prob", p.blood_prob, "probability of blood pools over the cortex (and of the two below unless given)")->capture_default_str();
+    cmd->add_option("--sulcal-blood-prob", p.sulcal_blood_prob, "probability of subarachnoid blood in the sulci over a patch");
+    cmd->add_option("--blood-film-prob", p.blood_film_prob, "probability of a thin film of blood over part of the cortex");
     cmd->add_option("--distortion-prob", p.distortion_prob, "probability of lens distortion")->capture_default_str();
     cmd->add_option("--png-fraction", p.png_fraction, "fraction of non-DSLR photos written as PNG")->capture_default_str();
     cmd->add_option("--max-tilt-deg", p.max_tilt_deg, "largest off-normal tilt of the camera")->capture_default_str();

@@ -33,6 +33,8 @@ void PhantomParams::validate() const {
     prob("dslr-fraction", dslr_fraction);
     prob("gauze-prob", gauze_prob);
     prob("blood-prob", blood_prob);
+    if (sulcal_blood_prob) prob("sulcal-blood-prob", *sulcal_blood_prob);
+    if (blood_film_prob) prob("blood-film-prob", *blood_film_prob);
     prob("distortion-prob", distortion_prob);
     prob("png-fraction", png_fraction);
     range2("distance_mm", distance_mm, 100, 1000);
@@ -122,6 +124,16 @@ inline Col rgb(double r, double g, double b) {
 }
 inline Col mix(const Col& a, const Col& b, float t) { return a + (b - a) * t; }
 
+/// What is seen through a layer of blood `h_mm` thick over `under` (light in and out again):
+/// whole blood absorbs green and blue within a fraction of a millimetre and red far less, so a
+/// thin film tints the tissue red and leaves its texture, and a thick layer shows only the
+/// blood's own dark red `body`. Beer-Lambert per channel; the coefficients are rough, for looks.
+inline Col through_blood(const Col& under, const Col& body, double h_mm) {
+    const Col k_per_mm(2.f, 9.f, 7.f);
+    const Col t = (-2.f * float(std::max(0.0, h_mm)) * k_per_mm).exp();
+    return under * t + body * (1.f - t);
+}
+
 /// A colour jittered in brightness and per channel (multiplicative, linear space).
 Col jitter(Rng& r, const Col& c, double bright, double chan) {
     const float k = float(1 + bright * (2 * r.uni() - 1));
@@ -162,6 +174,11 @@ struct Crani {
     double flap_th = 0, flap_half = 1, flap_w = 0;
     // A milky arachnoid bridging the sulci (0: clear), as over an older or inflamed brain.
     double veil = 0;
+    // Blood besides the pools: subarachnoid blood filling the sulci over a patch (sah: its
+    // strength, 0 for none) and a thin film of blood and irrigation over another (film_mm: its
+    // thickness at the centre); centres and radii in (a, b) mm.
+    double sah = 0, sah_r = 10, film_mm = 0, film_r = 10;
+    Vec2 sah_c = Vec2::Zero(), film_c = Vec2::Zero();
 
     /// Whether (a, b), outside the bone cut, lies under the reflected dural flap; `edge_mm`: how
     /// far inside the flap's free edge.
@@ -591,6 +608,26 @@ PhantomCase generate_phantom_case(const PhantomSurface& S, const PhantomParams& 
         }
         if (rx.chance(0.4)) cr.veil = rx.uni(0.2, 0.6);
     }
+    {
+        // Blood in the sulci and as a film: a stream of their own too, so a seed's poses,
+        // landmarks and ROI stay as they were before these were added.
+        Rng rbd(splitmix64(P.seed * 0x9FB21C651E98DF25ull + splitmix64(uint64_t(index) + 0xB100Dull)));
+        const double rc = 0.5 * (cr.R1 + cr.R2);
+        auto inside = [&] {
+            const double th = rbd.uni(0, 2 * kPi), rr = 0.7 * std::sqrt(rbd.uni());
+            return Vec2(std::cos(th), std::sin(th)) * rr * cr.r_bone(th);
+        };
+        if (rbd.chance(P.sulcal_blood_prob.value_or(P.blood_prob))) {
+            cr.sah = rbd.uni(0.5, 1.0);
+            cr.sah_c = inside();
+            cr.sah_r = rbd.uni(0.25, 0.6) * rc;
+        }
+        if (rbd.chance(P.blood_film_prob.value_or(P.blood_prob))) {
+            cr.film_mm = rbd.uni(0.02, 0.12);
+            cr.film_c = inside();
+            cr.film_r = rbd.uni(0.3, 0.7) * rc;
+        }
+    }
 
     // ---- pose: near the outward normal, tilted, random roll
     const double tilt = P.max_tilt_deg * std::sqrt(rng.uni()) * kPi / 180, az = rng.uni(0, 2 * kPi);
@@ -829,11 +866,30 @@ PhantomCase generate_phantom_case(const PhantomSurface& S, const PhantomParams& 
                     const float vt = tx.sample(tx.vein_tube, ab), at = tx.sample(tx.artery_tube, ab);
                     alb = mix(alb, L.artery * (1.15f - 0.3f * at), (0.7f + 0.2f * at) * aa);
                     alb = mix(alb, L.vein * (1.2f - 0.35f * vt), (0.72f + 0.23f * vt) * va);
-                    // Bump: tilt the normal by the texture height gradient.
+                    // Subarachnoid blood: it pools in the sulci (up to ~1 mm deep there) and
+                    // stains the crowns only thinly; a patch with a ragged edge.
+                    if (cr.sah > 0) {
+                        const double q = (ab - cr.sah_c).norm() / cr.sah_r +
+                                         0.6 * (fbm(float(ab.x() / 6), float(ab.y() / 6), ns + 30, 3) - 0.5);
+                        const float w = float(cr.sah) * (1 - smoothstep(0.6f, 1.0f, float(q)));
+                        if (w > 0) alb = through_blood(alb, L.blood, w * (0.04 + 1.0 * smoothstep(0.5f, 3.f, sd)));
+                    }
+                    // A film of blood and irrigation: the tissue shows through, tinted, and the
+                    // film's surface is smooth and wet.
+                    double film_h = 0;
+                    if (cr.film_mm > 0) {
+                        const double q = (ab - cr.film_c).norm() / cr.film_r +
+                                         0.8 * (fbm(float(ab.x() / 8), float(ab.y() / 8), ns + 31, 3) - 0.5);
+                        film_h = cr.film_mm * (1 - smoothstep(0.5f, 1.0f, float(q))) *
+                                 (0.5 + fbm(float(ab.x() / 3), float(ab.y() / 3), ns + 32, 2));
+                        if (film_h > 0) alb = through_blood(alb, L.blood, film_h);
+                    }
+                    const double film_smooth = std::clamp(film_h / 0.15, 0.0, 1.0);
+                    // Bump: tilt the normal by the texture height gradient (a film fills it in).
                     const float gx = tx.sample(tx.grad_x, ab), gy = tx.sample(tx.grad_y, ab);
                     Vec3 t1 = cr.e1 - nrm * nrm.dot(cr.e1), t2 = cr.e2 - nrm * nrm.dot(cr.e2);
-                    nrm = (nrm - double(gx) * t1 - double(gy) * t2).normalized();
-                    const double wet = L.spec * (1 - 0.5 * smoothstep(1.f, 4.f, sd));
+                    nrm = (nrm - (1 - 0.7 * film_smooth) * (double(gx) * t1 + double(gy) * t2)).normalized();
+                    const double wet = L.spec * (1 - 0.5 * smoothstep(1.f, 4.f, sd)) * (1 + 0.5 * film_smooth);
                     c = shade(alb, nrm, p, wet, L.shininess);
                     // Deep sulci get little light.
                     c *= float(1 - 0.45 * smoothstep(2.f, 8.f, sd));
@@ -1073,6 +1129,9 @@ PhantomCase generate_phantom_case(const PhantomSurface& S, const PhantomParams& 
             const int x0 = std::max(0, int(bc.x() - 2 * rpx)), x1 = std::min(rw - 1, int(bc.x() + 2 * rpx));
             const int y0 = std::max(0, int(bc.y() - 2 * rpx)), y1 = std::min(rh - 1, int(bc.y() + 2 * rpx));
             const float thin = float(rng.uni(0.2, 0.8));
+            // Depth at the centre, mm: a shallow smear to a deep pool.
+            const double deep_mm = 0.3 + 2.5 * (1 - thin);
+            const float ppm = float(px_per_mm);
             for (int v = y0; v <= y1; ++v)
                 for (int u = x0; u <= x1; ++u) {
                     const size_t i = size_t(v) * rw + u;
@@ -1080,14 +1139,22 @@ PhantomCase generate_phantom_case(const PhantomSurface& S, const PhantomParams& 
                     const float nz = fbm(float(u / rpx * 1.5), float(v / rpx * 1.5), bs, 3);
                     const double m = r + 0.7 * (nz - 0.5);
                     if (m < 1.0 && layer[i] != kDrape) {
-                        // A glossy pool: dark red, thinner (redder) at the rim, specular flecks.
-                        const float rim = float(smoothstep(0.75f, 1.0f, float(m)));
-                        Col col = mix(L.blood, L.blood * 2.2f + rgb(40, 0, 0), rim * thin);
-                        const float fleck = fbm(float(u / (2.5 * px_per_mm)), float(v / (2.5 * px_per_mm)), bs + 1, 2);
-                        col += L.light * float(1.2 * smoothstep(0.84f, 0.9f, fleck) * L.spec * 0.6);
-                        const float a = float(1 - smoothstep(0.9f, 1.0f, float(m)));
-                        img[i] = mix(img[i], col * float(L.ambient + L.diffuse), a);
-                        if (a > 0.5f) occl.data[i] = 255;
+                        // A glossy pool: its depth rises from nothing at the edge (a meniscus),
+                        // so the rim is a red stain over the tissue and the middle the blood's
+                        // own colour, darker where it clots.
+                        const double h = deep_mm * std::sqrt(std::max(0.0, 1 - m) / 1.0);
+                        const float clot = fbm(float(u / (1.2f * ppm)), float(v / (1.2f * ppm)), bs + 2, 3);
+                        const Col body = L.blood * (0.55f + 0.7f * clot) * float(L.ambient + L.diffuse);
+                        Col col = through_blood(img[i], body, h);
+                        // Its smooth surface mirrors the lamp: flecks, and a glint along the
+                        // meniscus where the surface curves.
+                        const float fleck = fbm(float(u / (2.5 * ppm)), float(v / (2.5 * ppm)), bs + 1, 2);
+                        col += L.light * float(1.2 * smoothstep(0.84f, 0.9f, fleck) * L.spec * 0.6 * (1 - smoothstep(0.85f, 1.f, float(m))));
+                        const float men = smoothstep(0.84f, 0.88f, float(m)) * (1 - smoothstep(0.9f, 0.94f, float(m)));
+                        const float glint = smoothstep(0.62f, 0.8f, fbm(float(u / (1.5 * ppm)), float(v / (1.5 * ppm)), bs + 3, 2));
+                        col += L.light * float(0.2 * L.spec * men * glint);
+                        img[i] = col;
+                        if (m < 0.95) occl.data[i] = 255;
                     }
                 }
         }
@@ -1303,6 +1370,7 @@ PhantomCase generate_phantom_case(const PhantomSurface& S, const PhantomParams& 
           << " gauze=" << n_gauze << " blood=" << n_blood << " veins=" << n_veins << " arteries=" << n_arteries
           << " towels=" << cr.n_towels << " burr_holes=" << cr.n_burr << " clips=" << cr.n_clips
           << " dural_flap=" << (cr.flap_w > 0 ? "yes" : "no") << " arachnoid_veil=" << fmt(cr.veil)
+          << " sulcal_blood=" << fmt(cr.sah) << " blood_film_mm=" << fmt(cr.film_mm)
           << " shininess=" << fmt(L.shininess, 0) << " spec=" << fmt(L.spec) << " exposure=" << fmt(L.exposure)
           << " noise_sd=" << fmt(L.noise_sd)
           << " jpeg_quality=" << (out.jpeg ? out.jpeg_quality : (apply_jpeg_artefacts ? L.jpeg_quality : 0));

@@ -194,6 +194,60 @@ TEST_F(Phantom, SurgicalFieldIsNotedAndLeavesThePoseAlone) {
     EXPECT_NEAR(t.z(), 350.9517425323447, 0.1);
 }
 
+// Subarachnoid blood and a film of blood are drawn from a stream of their own: turned on, they
+// change only cortex pixels, redden them (blood absorbs green and blue far more than red) and
+// leave the pose, landmarks, ROI and targets as they were.
+TEST_F(Phantom, SulcalBloodAndABloodFilmRedderTheCortexAndLeaveTheCaseAlone) {
+    PhantomParams p;
+    p.seed = 9;
+    p.dslr_fraction = 0.0;
+    p.gauze_prob = p.blood_prob = 0.0;  // no pools: unset, the two new forms follow this
+    const PhantomCase plain = generate_phantom_case(*surface_, p, 0);
+    EXPECT_NE(plain.notes.find(" sulcal_blood=0.00 blood_film_mm=0.00"), std::string::npos) << plain.notes;
+    for (const bool film : {false, true}) {
+        SCOPED_TRACE(film ? "film" : "sulcal blood");
+        PhantomParams q = p;
+        (film ? q.blood_film_prob : q.sulcal_blood_prob) = 1.0;
+        const PhantomCase c = generate_phantom_case(*surface_, q, 0);
+        const std::string key = film ? " blood_film_mm=" : " sulcal_blood=";
+        const size_t at = c.notes.find(key);
+        ASSERT_NE(at, std::string::npos) << c.notes;
+        EXPECT_GT(std::stod(c.notes.substr(at + key.size())), 0.0) << c.notes;
+        EXPECT_TRUE(c.T_camera_from_world.isApprox(plain.T_camera_from_world, 0));
+        ASSERT_EQ(c.landmarks.size(), plain.landmarks.size());
+        for (size_t k = 0; k < c.landmarks.size(); ++k) EXPECT_EQ(c.landmarks[k].pixel, plain.landmarks[k].pixel);
+        EXPECT_EQ(c.roi_points, plain.roi_points);
+        EXPECT_EQ(c.targets_world_mm, plain.targets_world_mm);
+        // The pixels that changed: enough of them, all redder, none far outside the ROI.
+        ASSERT_EQ(c.photo_bgr.size(), plain.photo_bgr.size());
+        cv::Mat roi_mask = cv::Mat::zeros(c.photo_bgr.size(), CV_8U);
+        std::vector<cv::Point> poly;
+        for (const auto& r : c.roi_points) poly.emplace_back(int(r.x()), int(r.y()));
+        cv::fillPoly(roi_mask, std::vector<std::vector<cv::Point>>{poly}, cv::Scalar(255));
+        cv::dilate(roi_mask, roi_mask, cv::getStructuringElement(cv::MORPH_ELLIPSE, cv::Size(41, 41)));
+        double d_red = 0, d_green = 0;
+        int changed = 0, changed_outside = 0;
+        for (int y = 0; y < c.photo_bgr.rows; ++y)
+            for (int x = 0; x < c.photo_bgr.cols; ++x) {
+                const cv::Vec3b a = c.photo_bgr.at<cv::Vec3b>(y, x), b = plain.photo_bgr.at<cv::Vec3b>(y, x);
+                const int dg = int(a[1]) - int(b[1]);
+                if (std::abs(dg) < 25) continue;  // JPEG ringing and noise aside
+                ++changed;
+                changed_outside += roi_mask.at<uint8_t>(y, x) == 0;
+                d_red += int(a[2]) - int(b[2]);
+                d_green += dg;
+            }
+        const int npx = c.photo_bgr.rows * c.photo_bgr.cols;
+        EXPECT_GT(changed, npx / 200) << "the blood barely shows";
+        EXPECT_LT(changed_outside, changed / 20) << "blood off the cortex";
+        EXPECT_LT(d_green / changed, -25) << "green is what blood takes away";
+        EXPECT_GT(d_red / changed, d_green / changed + 20) << "red must stay far above green";
+    }
+    PhantomParams bad = p;
+    bad.blood_film_prob = 1.5;
+    EXPECT_THROW(bad.validate(), InputError);
+}
+
 TEST_F(Phantom, DslrCaseIsFullSizeJpeg) {
     PhantomParams p;
     p.seed = 3;

@@ -41,6 +41,10 @@ struct PhantomParams {
     /// Probability that a case has gauze (cottonoid patties) / blood pools over cortex. 0..1.
     double gauze_prob = 0.3;
     double blood_prob = 0.3;
+    /// Probability of subarachnoid blood in the sulci over a patch, and of a thin film of blood
+    /// and irrigation over another, each drawn apart from the pools. Unset: `blood_prob`, so
+    /// that `blood_prob = 0` still means a case without blood. 0..1.
+    std::optional<double> sulcal_blood_prob, blood_film_prob;
     /// Probability of non-zero lens distortion (k1 in [-0.15, 0.08], small k2, p1, p2). 0..1.
     double distortion_prob = 0.4;
     /// Camera-to-craniotomy distance, mm. 100..1000.
