@@ -521,6 +521,45 @@ TEST(PhotoChannel, APoolOfBloodOverHalfTheCortexIsDroppedAndThePiaKept) {
     EXPECT_GT(cv::countNonZero(kept_pool), pool_px * 9 / 10);
 }
 
+// Blood absorbs green and blue within a fraction of a millimetre and red far less, so a thin film
+// of it over the pia (blood and irrigation) darkens the grey channel in a patch that the MRI has
+// no reason for, and leaves the red channel's shading nearly as it was. The default channel
+// must see through such a film: its step at the film's edge stays small beside the shading.
+TEST(PhotoChannel, TheDefaultChannelSeesThroughAThinFilmOfBlood) {
+    const int w = 240, h = 160;
+    cv::Mat photo(h, w, CV_8UC3), shading(h, w, CV_32F), film(h, w, CV_8U, cv::Scalar(0));
+    cv::circle(film, {w / 2, h / 2}, 50, cv::Scalar(255), cv::FILLED);
+    cv::RNG rng(5);
+    for (int y = 0; y < h; ++y)
+        for (int x = 0; x < w; ++x) {
+            const double s = 0.75 + 0.2 * std::sin(x * 0.11) * std::cos(y * 0.07);  // gyri's shading
+            shading.at<float>(y, x) = float(s);
+            // Pink pia (below clipping); a film of blood passes ~85 % of red, ~25 % of green/blue.
+            const bool f = film.at<uint8_t>(y, x) != 0;
+            const double tr = f ? 0.85 : 1, tgb = f ? 0.25 : 1;
+            photo.at<cv::Vec3b>(y, x) = cv::Vec3b(cv::saturate_cast<uint8_t>(190 * s * tgb + rng.gaussian(1.5)),
+                                                  cv::saturate_cast<uint8_t>(170 * s * tgb + rng.gaussian(1.5)),
+                                                  cv::saturate_cast<uint8_t>(240 * s * tr + rng.gaussian(1.5)));
+        }
+    const cv::Mat roi(h, w, CV_8U, cv::Scalar(255));
+    // How much of the channel the shading explains, over the whole ROI (no masking here: the
+    // film is not a vessel and must not need dropping).
+    auto explained = [&](const std::string& channel) {
+        const PhotoChannel pc = photo_channel(photo, channel, false, roi, 0.0, 0.0);
+        cv::Mat a, b;
+        pc.channel.reshape(1, 1).convertTo(a, CV_64F);
+        shading.reshape(1, 1).convertTo(b, CV_64F);
+        cv::Scalar ma, sa, mb, sb;
+        cv::meanStdDev(a, ma, sa);
+        cv::meanStdDev(b, mb, sb);
+        const double r = cv::mean((a - ma[0]).mul(b - mb[0]))[0] / (sa[0] * sb[0]);
+        return r * r;
+    };
+    const double r2_default = explained(RegistrationParams{}.photo_channel), r2_grey = explained("grey");
+    EXPECT_GT(r2_default, 0.8) << RegistrationParams{}.photo_channel;
+    EXPECT_LT(r2_grey, 0.5) << "the film should dominate the grey channel";
+}
+
 TEST(PhotoChannel, TissueMedianMadHoldsWithHalfTheValuesElsewhereAndMatchesThePlainOnesWithout) {
     cv::RNG rng(11);
     std::vector<float> pia, mixed;

@@ -45,8 +45,9 @@ struct StageParams {
 
 struct RegistrationParams {
     std::string transfer_function = "surface_white";  // render style: a preset name
-    /// Photo channel compared with the rendering: "grey", "green", "blue_minus_half_red" (hides vessels).
-    std::string photo_channel = "grey";
+    /// Photo channel compared with the rendering: "red" (sees through thin blood: blood absorbs
+    /// green and blue far more than red), "grey", "green", "blue_minus_half_red" (hides vessels).
+    std::string photo_channel = "red";
     std::string metric = "nmi";
     int bins = 32;
     /// Joint histogram binning: "linear" (partial volume: smooth in the pose) or "hard".
