@@ -1142,7 +1142,7 @@ PhantomCase generate_phantom_case(const PhantomSurface& S, const PhantomParams& 
                         // A glossy pool: its depth rises from nothing at the edge (a meniscus),
                         // so the rim is a red stain over the tissue and the middle the blood's
                         // own colour, darker where it clots.
-                        const double h = deep_mm * std::sqrt(std::max(0.0, 1 - m) / 1.0);
+                        const double h = deep_mm * std::sqrt(std::max(0.0, 1 - m));
                         const float clot = fbm(float(u / (1.2f * ppm)), float(v / (1.2f * ppm)), bs + 2, 3);
                         const Col body = L.blood * (0.55f + 0.7f * clot) * float(L.ambient + L.diffuse);
                         Col col = through_blood(img[i], body, h);
