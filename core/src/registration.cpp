@@ -413,14 +413,21 @@ PhotoChannel photo_channel(const cv::Mat& bgr, const std::string& channel, bool 
     PhotoChannel out;
     out.channel.create(bgr.size(), CV_32F);
     out.valid = roi.empty() ? cv::Mat(bgr.size(), CV_8U, cv::Scalar(255)) : roi.clone();
-    const int mode = channel == "grey" ? 0 : channel == "green" ? 1 : channel == "red" ? 3 : 2;
+    enum class Mode { grey, green, red, blue_minus_half_red };
+    const Mode mode = channel == "grey"    ? Mode::grey
+                      : channel == "green" ? Mode::green
+                      : channel == "red"   ? Mode::red
+                                           : Mode::blue_minus_half_red;
     for (int y = 0; y < bgr.rows; ++y) {
         const cv::Vec3b* p = bgr.ptr<cv::Vec3b>(y);
         float* c = out.channel.ptr<float>(y);
         uint8_t* v = out.valid.ptr<uint8_t>(y);
         for (int x = 0; x < bgr.cols; ++x) {
             const float b = p[x][0] / 255.f, g = p[x][1] / 255.f, r = p[x][2] / 255.f;
-            c[x] = mode == 0 ? 0.299f * r + 0.587f * g + 0.114f * b : mode == 1 ? g : mode == 3 ? r : b - 0.5f * r;
+            c[x] = mode == Mode::grey    ? 0.299f * r + 0.587f * g + 0.114f * b
+                   : mode == Mode::green ? g
+                   : mode == Mode::red   ? r
+                                         : b - 0.5f * r;
             if (mask_glare && v[x]) {
                 const float mx = std::max({r, g, b}), mn = std::min({r, g, b});
                 const float sat = mx > 1e-6f ? (mx - mn) / mx : 0.f;

@@ -524,7 +524,7 @@ TEST(PhotoChannel, APoolOfBloodOverHalfTheCortexIsDroppedAndThePiaKept) {
 // Blood absorbs green and blue within a fraction of a millimetre and red far less, so a thin film
 // of it over the pia (blood and irrigation) darkens the grey channel in a patch that the MRI has
 // no reason for, and leaves the red channel's shading nearly as it was. The default channel
-// must see through such a film: its step at the film's edge stays small beside the shading.
+// must see through such a film: the shading still explains most of its variance.
 TEST(PhotoChannel, TheDefaultChannelSeesThroughAThinFilmOfBlood) {
     const int w = 240, h = 160;
     cv::Mat photo(h, w, CV_8UC3), shading(h, w, CV_32F), film(h, w, CV_8U, cv::Scalar(0));
