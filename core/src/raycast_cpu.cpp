@@ -12,6 +12,7 @@
 #include <cmath>
 #include <limits>
 #include <memory>
+#include <stdexcept>
 
 #include "cortexfuse/core/renderer.hpp"
 #include "huge_page_allocator.hpp"
@@ -290,9 +291,18 @@ public:
         const int w = K.width;
         // Square-ish tiles: neighbouring rays in both directions read the same bricks, which
         // a row strip of the same pixel count does not (fewer cache misses on a 32 MB volume).
+        if (opt.ray_mask && opt.ray_mask->size() != n) throw std::invalid_argument("render: ray_mask is not width*height");
+        const uint8_t* mask = opt.ray_mask ? opt.ray_mask->data() : nullptr;
         auto body = [&](const tbb::blocked_range2d<int>& tile) {
             for (int v = tile.rows().begin(); v < tile.rows().end(); ++v)
-                for (int u = tile.cols().begin(); u < tile.cols().end(); ++u) cast(f, size_t(v) * w + u, opt, out);
+                for (int u = tile.cols().begin(); u < tile.cols().end(); ++u) {
+                    const size_t px = size_t(v) * w + u;
+                    if (mask && !mask[px]) {
+                        skip(px, out);
+                        continue;
+                    }
+                    cast(f, px, opt, out);
+                }
         };
         const tbb::blocked_range2d<int> all(0, K.height, 8, 0, K.width, 16);
         if (opt.threads > 0) {
@@ -342,6 +352,14 @@ private:
         y = std::clamp(y, 0.f, float(d[1] - 1) - 1e-3f);
         z = std::clamp(z, 0.f, float(d[2] - 1) - 1e-3f);
         return sample(x, y, z);
+    }
+
+    /// A pixel left out by RenderOptions::ray_mask: no hit.
+    static void skip(size_t px, RenderImage& out) {
+        out.grey[px] = 0.f;
+        out.coverage[px] = 0;
+        if (!out.rgb.empty()) out.rgb[px * 3 + 0] = out.rgb[px * 3 + 1] = out.rgb[px * 3 + 2] = 0;
+        if (!out.depth_mm.empty()) out.depth_mm[px] = 0.f;
     }
 
     void cast(const Frame& f, size_t px, const RenderOptions& opt, RenderImage& out) const {

@@ -276,6 +276,43 @@ TEST(CpuRenderer, UnwantedOutputsAreLeftEmpty) {
     EXPECT_EQ(im.coverage, full.coverage);
 }
 
+TEST(CpuRenderer, ARayMaskCastsItsPixelsAsAFullFrameDoesAndLeavesTheOthersUnhit) {
+    const VolumeGeometry g = oblique_grid();
+    const Eigen::Vector3d c = g.center_world_mm();
+    const Volume v = ball(g, c, 30);
+    auto r = make_cpu_renderer(v, sharp_tf(0.9, 0.6, 0.3));
+    const Intrinsics K = camera();
+    const size_t n = size_t(K.width * K.height);
+    RenderOptions opt;
+    opt.surface_only = true;
+    RenderImage full;
+    r->render(K, facing(c, 200), opt, full);
+    ASSERT_GT(covered(full), 1000u);
+    std::vector<uint8_t> mask(n, 0);
+    for (size_t i = 0; i < n; ++i) mask[i] = (i * 7919) % 3 == 0;  // a third of the pixels, scattered
+    opt.ray_mask = &mask;
+    RenderImage im = full;  // a reused image: the left-out pixels must not keep the old values
+    r->render(K, facing(c, 200), opt, im);
+    size_t cast_hits = 0;
+    for (size_t i = 0; i < n; ++i) {
+        if (mask[i]) {
+            ASSERT_EQ(im.grey[i], full.grey[i]) << i;
+            ASSERT_EQ(im.depth_mm[i], full.depth_mm[i]) << i;
+            ASSERT_EQ(im.coverage[i], full.coverage[i]) << i;
+            ASSERT_EQ(im.rgb[3 * i + 1], full.rgb[3 * i + 1]) << i;
+            cast_hits += im.coverage[i];
+        } else {
+            ASSERT_EQ(im.coverage[i], 0) << i;
+            ASSERT_EQ(im.grey[i], 0.f) << i;
+            ASSERT_EQ(im.depth_mm[i], 0.f) << i;
+        }
+    }
+    EXPECT_GT(cast_hits, covered(full) / 4);
+    std::vector<uint8_t> wrong(n - 1, 1);
+    opt.ray_mask = &wrong;
+    EXPECT_THROW(r->render(K, facing(c, 200), opt, im), std::invalid_argument);
+}
+
 TEST(CpuRenderer, ZeroOpacityEverywhereCoversNothing) {
     const VolumeGeometry g = axis_grid();
     const Eigen::Vector3d c = g.center_world_mm();
@@ -530,6 +567,100 @@ TEST(CpuRenderer, RayStartMapDoesNotChangePixels) {
             EXPECT_LT(depth_diff, 1e-3f) << "view " << n << " surface_only " << surface_only;
             ++n;
         }
+}
+
+namespace {
+/// RayStartMap::add brick by brick with nothing skipped (what it did before it grouped them):
+/// each brick's nearest corner depth written over the cells under its corners' image.
+bool start_map_brute_force(const Eigen::Matrix4d& T_camera_from_index, const std::vector<std::array<int, 3>>& frontier,
+                           int edge, const RayStartMap& grid, std::vector<float>& z) {
+    z.assign(size_t(grid.cells_x()) * size_t(grid.cells_y()), std::numeric_limits<float>::infinity());
+    const Eigen::Matrix4f M = T_camera_from_index.cast<float>();
+    const Eigen::Vector3f origin = M.col(3).head<3>();
+    const Eigen::Vector3f ex = M.col(0).head<3>() * float(edge), ey = M.col(1).head<3>() * float(edge), ez = M.col(2).head<3>() * float(edge);
+    std::array<Eigen::Vector3f, 8> offset;
+    for (int c = 0; c < 8; ++c) offset[size_t(c)] = float(c & 1) * ex + float((c >> 1) & 1) * ey + float((c >> 2) & 1) * ez;
+    const float inv = grid.inv_cell();
+    for (const auto& b : frontier) {
+        const Eigen::Vector3f p0 = origin + float(b[0]) * ex + float(b[1]) * ey + float(b[2]) * ez;
+        float zmin = std::numeric_limits<float>::infinity(), xlo = zmin, ylo = zmin, xhi = -zmin, yhi = -zmin;
+        for (size_t c = 0; c < 8; ++c) {
+            const Eigen::Vector3f pc = p0 + offset[c];
+            if (!(pc.z() > 1e-3f)) return false;
+            zmin = std::min(zmin, pc.z());
+            xlo = std::min(xlo, pc.x() / pc.z()), xhi = std::max(xhi, pc.x() / pc.z());
+            ylo = std::min(ylo, pc.y() / pc.z()), yhi = std::max(yhi, pc.y() / pc.z());
+        }
+        xlo -= 1e-4f, ylo -= 1e-4f, xhi += 1e-4f, yhi += 1e-4f;
+        const int cx0 = std::max(0, int(std::floor((xlo - grid.x0()) * inv))), cx1 = std::min(grid.cells_x() - 1, int(std::floor((xhi - grid.x0()) * inv)));
+        const int cy0 = std::max(0, int(std::floor((ylo - grid.y0()) * inv))), cy1 = std::min(grid.cells_y() - 1, int(std::floor((yhi - grid.y0()) * inv)));
+        for (int cy = cy0; cy <= cy1; ++cy)
+            for (int cx = cx0; cx <= cx1; ++cx) z[size_t(cy * grid.cells_x() + cx)] = std::min(z[size_t(cy * grid.cells_x() + cx)], zmin);
+    }
+    return true;
+}
+}  // namespace
+
+TEST(RayStartMap, SkippingGroupsOfBricksGivesTheMapOfEveryBrick) {
+    // A lumpy shell of bricks with holes (a brain's frontier has a front, a back and walls
+    // inside), seen whole, through a small crop (most groups off the grid), obliquely, and
+    // from inside its box (bricks behind the camera: no map). The grouped, skipping add() must
+    // give exactly the map of every brick projected, and so must any order of the bricks.
+    const std::array<int, 3> n{40, 36, 32};
+    std::vector<uint8_t> visible(size_t(n[0]) * n[1] * n[2], 0);
+    std::mt19937 rng(7);
+    std::uniform_real_distribution<double> U(0, 1);
+    for (int z = 0; z < n[2]; ++z)
+        for (int y = 0; y < n[1]; ++y)
+            for (int x = 0; x < n[0]; ++x) {
+                const double r = std::sqrt(std::pow(x - 20.0, 2) + std::pow((y - 18.0) * 1.1, 2) + std::pow((z - 16.0) * 1.2, 2));
+                const double R = 14 + 2 * std::sin(x * 0.7) * std::cos(y * 0.5);
+                visible[(size_t(z) * n[1] + y) * n[0] + x] = r < R && !(r < 6 && U(rng) < 0.5) && U(rng) > 0.03;
+            }
+    std::vector<std::array<int, 3>> frontier = frontier_bricks(visible, n);
+    ASSERT_GT(frontier.size(), 2000u);
+    for (size_t i = 1; i < frontier.size(); ++i) ASSERT_LE(start_map_group(frontier[i - 1]), start_map_group(frontier[i]));
+    std::vector<std::array<int, 3>> shuffled = frontier;
+    std::shuffle(shuffled.begin(), shuffled.end(), rng);
+    const int edge = 4;
+    const Eigen::Vector3d centre(80, 72, 64);  // index space, the shell's centre
+    Intrinsics K = camera();
+    Intrinsics crop = K;  // a 40 x 30 window off the image centre
+    crop.cx -= 70, crop.cy -= 20, crop.width = 40, crop.height = 30;
+    const Eigen::Vector3d up(0, 0, 1);
+    struct View {
+        Pose T;
+        const Intrinsics* K;
+        bool valid;
+    };
+    const std::vector<View> views = {
+        {look_at(centre + 400 * Eigen::Vector3d(1, 0.6, -0.4).normalized(), centre, up), &K, true},
+        {look_at(centre + 300 * Eigen::Vector3d(-0.2, 1, 0.5).normalized(), centre, up), &crop, true},
+        {look_at(centre + 250 * Eigen::Vector3d(0.3, -0.2, 1).normalized(), centre, Eigen::Vector3d(1, 0, 0)), &crop, true},
+        {look_at(centre + Eigen::Vector3d(3, 2, 1), centre + Eigen::Vector3d(60, 0, 0), up), &K, false},
+    };
+    int v = 0;
+    for (const auto& view : views) {
+        std::vector<Eigen::Vector3f> rays = pixel_rays(*view.K);
+        for (auto& r : rays) r.normalize();
+        RayStartMap map, map_shuffled;
+        map.set_rays(rays, view.K->width);
+        map_shuffled.set_rays(rays, view.K->width);
+        map.clear();
+        map_shuffled.clear();
+        std::vector<float> z_ref;
+        const bool ref = start_map_brute_force(view.T, frontier, edge, map, z_ref);
+        EXPECT_EQ(ref, view.valid) << "view " << v;
+        EXPECT_EQ(map.add(view.T, frontier, edge), ref) << "view " << v;
+        EXPECT_EQ(map_shuffled.add(view.T, shuffled, edge), ref) << "view " << v;
+        if (ref) {
+            EXPECT_EQ(map.cells(), z_ref) << "view " << v;
+            EXPECT_EQ(map_shuffled.cells(), z_ref) << "view " << v;
+            const size_t finite = size_t(std::count_if(z_ref.begin(), z_ref.end(), [](float z) { return std::isfinite(z); }));
+            EXPECT_GT(finite, z_ref.size() / 5) << "view " << v << ": the shell must be in view";
+        }
+        ++v;
+    }
 }
 
 // The ray caster's sample and gradient kernels (SIMD where built with SSE4.1) against the plain

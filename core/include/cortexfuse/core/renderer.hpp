@@ -40,6 +40,12 @@ struct RenderOptions {
     /// edge of the visible set that projects onto its pixel), not where it enters the volume's
     /// box. The pictures are the same; false only to compare (`bench render --no-start-map`).
     bool ray_start_map = true;
+    /// Which pixels to cast (row-major, width*height; nonzero: cast); null: every pixel. The
+    /// CPU caster leaves the others as no hit (grey 0, depth 0, no coverage); the GLSL backend
+    /// casts every pixel regardless, so a caller that leaves pixels out fills them itself (the
+    /// registration interpolates them) and both backends give it the same picture. Borrowed
+    /// during the call.
+    const std::vector<uint8_t>* ray_mask = nullptr;
     bool want_rgb = true;                 // skip work the caller does not need
     bool want_depth = true;
     int threads = 0;                      // 0 = all cores
@@ -103,9 +109,14 @@ void block_min_max(std::span<const uint16_t> q, const std::array<int, 3>& dims, 
 std::vector<uint8_t> brick_chebyshev_distance(const std::vector<uint8_t>& visible, const std::array<int, 3>& n_bricks,
                                               int cap);
 
+/// RayStartMap::add's group of a brick: the 4^3 bricks it shares a box with.
+inline uint64_t start_map_group(const std::array<int, 3>& b) {
+    return (uint64_t(uint32_t(b[2] >> 2)) << 42) | (uint64_t(uint32_t(b[1] >> 2)) << 21) | uint64_t(uint32_t(b[0] >> 2));
+}
+
 /// The bricks of `visible` (a grid of `n_bricks`, x fastest) with a brick outside the set, or
 /// outside the grid, among their 26 neighbours: a ray from outside the set enters it through one
-/// of them.
+/// of them. In groups (start_map_group(), ascending), raster order within a group.
 std::vector<std::array<int, 3>> frontier_bricks(const std::vector<uint8_t>& visible, const std::array<int, 3>& n_bricks);
 
 /// Where rays may start, shared by the ray casters (CPU and GLSL). Frontier bricks are
@@ -123,7 +134,9 @@ public:
     void clear();
     /// Adds the frontier bricks (edge `brick_voxels`) of a volume whose voxel index maps to the
     /// camera frame by `T_camera_from_index`. False when one reaches behind the camera: then no
-    /// ray may start late this frame.
+    /// ray may start late this frame. Bricks of one start_map_group() that follow each other
+    /// (frontier_bricks()' order) are skipped together when their box cannot change the map;
+    /// any order gives the same map.
     bool add(const Eigen::Matrix4d& T_camera_from_index, const std::vector<std::array<int, 3>>& frontier, int brick_voxels);
     /// The camera depth (mm) before which the ray of pixel `px` meets no frontier brick.
     float start_z(size_t px) const { return z_[cell_[px]]; }
@@ -138,6 +151,12 @@ public:
     bool empty() const { return nx_ == 0; }
 
 private:
+    struct Group {
+        size_t begin, end;  // the group's bricks in the frontier
+        float zmin;         // its box's nearest depth; -inf: the box reaches behind the camera
+        int cx0, cx1, cy0, cy1;  // its box's cells (cx0 > cx1: reaches behind)
+    };
+    std::vector<Group> groups_;    // add()'s scratch
     std::vector<float> z_;         // per cell
     std::vector<uint32_t> cell_;   // per pixel
     int nx_ = 0, ny_ = 0;
