@@ -163,6 +163,7 @@ void RegistrationParams::validate(const std::string& ctx) const {
     if (!(landmark_prior_weight >= 0) || !(landmark_prior_tolerance_px >= 0)) bad("landmark prior must be >= 0");
     if (!(sample_distance_mm >= 0.1 && sample_distance_mm <= 5)) bad("sample_distance_mm must be 0.1..5");
     if (!(roi_margin_fraction >= 0 && roi_margin_fraction <= 2)) bad("roi_margin_fraction must be 0..2");
+    if (outer_ray_stride < 1 || outer_ray_stride > 8) bad("outer_ray_stride must be 1..8 (1: every ray)");
     if (!(depth_weight >= 0 && depth_weight <= 1)) bad("depth_weight must be 0..1");
     if (!(sulcal_weight >= 0 && sulcal_weight <= 1)) bad("sulcal_weight must be 0..1");
     if (!std::isnan(surface_tissue_fraction) && !(surface_tissue_fraction >= -0.5 && surface_tissue_fraction <= 1.5))
@@ -253,6 +254,7 @@ json to_json(const RegistrationParams& p) {
     if (std::isnan(p.surface_tissue_fraction)) j["surface_tissue_fraction"] = nullptr;
     else j["surface_tissue_fraction"] = p.surface_tissue_fraction;
     j["roi_margin_fraction"] = p.roi_margin_fraction;
+    j["outer_ray_stride"] = p.outer_ray_stride;
     j["binning"] = p.binning;
     j["robust_range"] = p.robust_range;
     j["estimate_light"] = p.estimate_light;
@@ -304,6 +306,7 @@ RegistrationParams registration_params_from_json(const json& j, const std::strin
                                             ? std::numeric_limits<double>::quiet_NaN()
                                             : j.at("surface_tissue_fraction").get<double>();
         p.roi_margin_fraction = j.value("roi_margin_fraction", p.roi_margin_fraction);
+        p.outer_ray_stride = j.value("outer_ray_stride", p.outer_ray_stride);
         p.binning = j.value("binning", p.binning);
         p.robust_range = j.value("robust_range", p.robust_range);
         p.estimate_light = j.value("estimate_light", p.estimate_light);
@@ -533,6 +536,8 @@ struct Level {
     double scale = 1;  // working px per camera px
     cv::Mat photo_blur;        // photo channel blurred for `blurred_fwhm_mm`
     double blurred_fwhm_mm = -1;
+    std::vector<uint8_t> ray_mask;  // the rays cast for `ray_mask_fwhm_mm` (outer_ray_stride > 1)
+    double ray_mask_fwhm_mm = -1;
 };
 
 /// Renders a pose and scores it against the photo at a stage's size and blur. Working levels
@@ -656,7 +661,15 @@ public:
             filter(L.photo.channel, L.photo_blur, st.fwhm_mm, L);
             L.blurred_fwhm_mm = st.fwhm_mm;
         }
+        const bool sparse = p_.outer_ray_stride > 1;
+        if (sparse && L.ray_mask_fwhm_mm != st.fwhm_mm) {
+            make_ray_mask(L, st.fwhm_mm);
+            L.ray_mask_fwhm_mm = st.fwhm_mm;
+        }
+        ropt_.ray_mask = sparse ? &L.ray_mask : nullptr;
         renderer_.render(L.K, T, ropt_, img_);
+        ropt_.ray_mask = nullptr;
+        if (sparse) fill_outer_rays(L);
         cv::Mat rendered(L.K.height, L.K.width, CV_32F, img_.grey.data());
         if (p_.depth_weight > 0) rendered = mix_relief(L.K.width, L.K.height);
         if (p_.sulcal_weight > 0) rendered = sulcal_darken(rendered, L);
@@ -665,6 +678,61 @@ public:
     }
 
 private:
+    /// The rays a stage casts (RegistrationParams::outer_ray_stride): every pixel within the
+    /// reach of its blur's kernel (4 sigma, OpenCV's cut, plus one pixel) of a usable one, and
+    /// beyond that a lattice of every `stride`-th row and column (and the last of each), from
+    /// which fill_outer_rays() interpolates the rest. So the blurred rendering at usable pixels
+    /// sees only cast rays; the lattice feeds the wide blurs (high-pass, sulcal hull).
+    void make_ray_mask(Level& L, double fwhm_mm) const {
+        const int w = L.K.width, h = L.K.height, s = p_.outer_ray_stride;
+        const double sigma_px = fwhm_mm_to_sigma_px(fwhm_mm, L.K.fx, depth_mm_);
+        const int r = int(std::ceil(4 * sigma_px)) + 1;
+        cv::Mat near;
+        cv::dilate(L.photo.valid, near, cv::getStructuringElement(cv::MORPH_ELLIPSE, cv::Size(2 * r + 1, 2 * r + 1)));
+        L.ray_mask.assign(size_t(w) * size_t(h), 0);
+        for (int v = 0; v < h; ++v) {
+            const bool lattice_row = v % s == 0 || v == h - 1;
+            const uint8_t* n = near.ptr<uint8_t>(v);
+            for (int u = 0; u < w; ++u)
+                L.ray_mask[size_t(v) * w + u] = (n[u] || (lattice_row && (u % s == 0 || u == w - 1))) ? 1 : 0;
+        }
+    }
+
+    /// The pixels make_ray_mask() left out, from the four lattice pixels around each: bilinear
+    /// where all four hit the surface, else the nearest of them (the brain's outline and the
+    /// background stay sharp-edged, as cast).
+    void fill_outer_rays(const Level& L) {
+        const int w = L.K.width, h = L.K.height, s = p_.outer_ray_stride;
+        const uint8_t* mask = L.ray_mask.data();
+        float* grey = img_.grey.data();
+        float* depth = img_.depth_mm.data();
+        uint8_t* cov = img_.coverage.data();
+        for (int v = 0; v < h; ++v) {
+            const int v0 = v - v % s, v1 = std::min(v0 + s, h - 1);
+            const float fy = v1 > v0 ? float(v - v0) / float(v1 - v0) : 0.f;
+            for (int u = 0; u < w; ++u) {
+                const size_t i = size_t(v) * w + u;
+                if (mask[i]) continue;
+                const int u0 = u - u % s, u1 = std::min(u0 + s, w - 1);
+                const float fx = u1 > u0 ? float(u - u0) / float(u1 - u0) : 0.f;
+                const size_t c[4] = {size_t(v0) * w + u0, size_t(v0) * w + u1, size_t(v1) * w + u0, size_t(v1) * w + u1};
+                const float wt[4] = {(1 - fx) * (1 - fy), fx * (1 - fy), (1 - fx) * fy, fx * fy};
+                if (cov[c[0]] && cov[c[1]] && cov[c[2]] && cov[c[3]]) {
+                    float g = 0, d = 0;
+                    for (int k = 0; k < 4; ++k) g += wt[k] * grey[c[k]], d += wt[k] * depth[c[k]];
+                    grey[i] = g;
+                    depth[i] = d;
+                    cov[i] = 1;
+                } else {
+                    const int k = int(std::max_element(wt, wt + 4) - wt);
+                    grey[i] = grey[c[k]];
+                    depth[i] = depth[c[k]];
+                    cov[i] = cov[c[k]];
+                }
+            }
+        }
+    }
+
     /// Sulcal darkening (see RegistrationParams::sulcal_weight), in a reused buffer. The relief
     /// is screen-space: the hit's depth below its neighbourhood's mean depth (background at the
     /// deepest hit, so the brain's outline is not taken for a sulcus).

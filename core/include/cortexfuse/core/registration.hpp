@@ -132,6 +132,12 @@ struct RegistrationParams {
     /// Rendering is cropped to the ROI's bounding box plus this fraction of the working width
     /// on each side (context for the blurs). Larger than 1 renders the whole frame.
     double roi_margin_fraction = 0.12;
+    /// Rays cast beyond the reach of the stage's blur (4 sigma, where OpenCV cuts its kernel)
+    /// from every usable ROI pixel: one every `outer_ray_stride` pixels along each axis, the
+    /// rest interpolated from them. Those pixels reach the similarity only through the wide
+    /// blurs (the high-pass's shading trends and the sulcal hull, 12 mm), which a coarser
+    /// lattice feeds as well. 1: every ray.
+    int outer_ray_stride = 1;
     /// The seed's subspaces: starting offsets (rx, ry, rz deg, tx, ty, tz mm) about the pivot,
     /// each searched independently through `search_stages`.
     std::vector<PoseParams> starts = {{0, 0, 0, 0, 0, 0}};
