@@ -127,6 +127,11 @@ RegistrationParams RegistrationParams::defaults() {
     // white matter (protocol 1.56 mm, 92 %; 0.94 mm, 100 % by tissue; fourteenth session,
     // docs/registration.md "The surface level by tissue").
     p.surface_tissue_fraction = 0.48;
+    // Seventeenth session: beyond the reach of a stage's blur from the usable ROI pixels, one ray
+    // in four (every other row and column), the rest interpolated. Those pixels feed only the
+    // 12 mm trends and the sulcal hull; about half of a 250 px frame's rays go (docs/registration.md,
+    // "Fewer rays where only the wide blurs look").
+    p.outer_ray_stride = 2;
     return p;
 }
 
