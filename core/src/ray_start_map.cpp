@@ -101,9 +101,9 @@ bool RayStartMap::add(const Eigen::Matrix4d& T_camera_from_index, const std::vec
     for (int c = 0; c < 8; ++c) offset[size_t(c)] = float(c & 1) * ex + float((c >> 1) & 1) * ey + float((c >> 2) & 1) * ez;
 
     // The cells under the image of the box with corners p0 + corner_offset, and its nearest
-    // depth; false when a corner is behind the camera. The
-    // perspective image of a convex box in front of the camera lies inside the box of its
-    // corners' images; a little wider for the rounding of the rays' coordinates.
+    // depth; false when a corner is behind the camera. The perspective image of a convex box in
+    // front of the camera lies inside the box of its corners' images; a little wider for the
+    // rounding of the rays' coordinates.
     struct Cells {
         int cx0, cx1, cy0, cy1;
         float zmin;
