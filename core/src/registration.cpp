@@ -42,6 +42,16 @@ bool valid_percentile_range(const cv::Mat& img, const cv::Mat& valid, std::vecto
     hi = scratch[b];
     return true;
 }
+
+/// The photo channels by name (RegistrationParams::photo_channel); nullopt: no such channel.
+enum class ChannelMode { grey, green, red, blue_minus_half_red };
+std::optional<ChannelMode> photo_channel_mode(const std::string& name) {
+    if (name == "grey") return ChannelMode::grey;
+    if (name == "green") return ChannelMode::green;
+    if (name == "red") return ChannelMode::red;
+    if (name == "blue_minus_half_red") return ChannelMode::blue_minus_half_red;
+    return std::nullopt;
+}
 }  // namespace
 
 // ---------------------------------------------------------------- parameters as data
@@ -158,8 +168,7 @@ RegistrationParams RegistrationParams::seed_schedule() {
 void RegistrationParams::validate(const std::string& ctx) const {
     auto bad = [&](const std::string& m) { throw InputError(ctx, m); };
     if (bins < 4 || bins > 256) bad("bins must be 4..256");
-    if (photo_channel != "grey" && photo_channel != "green" && photo_channel != "red" && photo_channel != "blue_minus_half_red")
-        bad("photo_channel must be grey, green, red or blue_minus_half_red");
+    if (!photo_channel_mode(photo_channel)) bad("photo_channel must be grey, green, red or blue_minus_half_red");
     metric_from_name(metric);
     if (!(highpass_fwhm_mm >= 0 && highpass_fwhm_mm <= 200)) bad("highpass_fwhm_mm must be 0..200 (0: off)");
     if (!(vessel_mask_mad >= 0 && vessel_mask_mad <= 100)) bad("vessel_mask_mad must be 0..100 (0: off)");
@@ -421,21 +430,18 @@ PhotoChannel photo_channel(const cv::Mat& bgr, const std::string& channel, bool 
     PhotoChannel out;
     out.channel.create(bgr.size(), CV_32F);
     out.valid = roi.empty() ? cv::Mat(bgr.size(), CV_8U, cv::Scalar(255)) : roi.clone();
-    enum class Mode { grey, green, red, blue_minus_half_red };
-    const Mode mode = channel == "grey"    ? Mode::grey
-                      : channel == "green" ? Mode::green
-                      : channel == "red"   ? Mode::red
-                                           : Mode::blue_minus_half_red;
+    // (An unknown name, which validate() refuses, has always fallen through to the last.)
+    const ChannelMode mode = photo_channel_mode(channel).value_or(ChannelMode::blue_minus_half_red);
     for (int y = 0; y < bgr.rows; ++y) {
         const cv::Vec3b* p = bgr.ptr<cv::Vec3b>(y);
         float* c = out.channel.ptr<float>(y);
         uint8_t* v = out.valid.ptr<uint8_t>(y);
         for (int x = 0; x < bgr.cols; ++x) {
             const float b = p[x][0] / 255.f, g = p[x][1] / 255.f, r = p[x][2] / 255.f;
-            c[x] = mode == Mode::grey    ? 0.299f * r + 0.587f * g + 0.114f * b
-                   : mode == Mode::green ? g
-                   : mode == Mode::red   ? r
-                                         : b - 0.5f * r;
+            c[x] = mode == ChannelMode::grey    ? 0.299f * r + 0.587f * g + 0.114f * b
+                   : mode == ChannelMode::green ? g
+                   : mode == ChannelMode::red   ? r
+                                                : b - 0.5f * r;
             if (mask_glare && v[x]) {
                 const float mx = std::max({r, g, b}), mn = std::min({r, g, b});
                 const float sat = mx > 1e-6f ? (mx - mn) / mx : 0.f;
