@@ -260,6 +260,7 @@ json to_json(const RegistrationParams& p) {
     j["landmark_prior_expected"] = p.landmark_prior_expected;
     j["sample_distance_mm"] = p.sample_distance_mm;
     j["depth_along_pivot_ray"] = p.depth_along_pivot_ray;
+    j["initial_pose_landmark_moves"] = p.initial_pose_landmark_moves;
     j["optimizer"] = p.optimizer;
     j["depth_scan_mm"] = p.depth_scan_mm;
     j["light_after_screen"] = p.light_after_screen;
@@ -310,6 +311,7 @@ RegistrationParams registration_params_from_json(const json& j, const std::strin
         p.landmark_prior_expected = j.value("landmark_prior_expected", p.landmark_prior_expected);
         p.sample_distance_mm = j.value("sample_distance_mm", p.sample_distance_mm);
         p.depth_along_pivot_ray = j.value("depth_along_pivot_ray", p.depth_along_pivot_ray);
+        p.initial_pose_landmark_moves = j.value("initial_pose_landmark_moves", p.initial_pose_landmark_moves);
         p.optimizer = j.value("optimizer", p.optimizer);
         p.depth_scan_mm = j.value("depth_scan_mm", p.depth_scan_mm);
         p.light_after_screen = j.value("light_after_screen", p.light_after_screen);
@@ -904,16 +906,17 @@ RegistrationResult Registration::run(const PhotoInput& in, const Progress* progr
     // Initial pose; from landmarks, the other poses that fit them about as well become extra
     // starts (the mirror ambiguity of near-planar landmarks is settled by the image).
     Pose T0;
-    std::vector<Pose> alternatives;
+    // The landmark fits: the best first, then the others (moves from the best to them become starts).
+    std::vector<LandmarkFit> fits;
     if (in.initial_pose) {
         T0 = *in.initial_pose;
         res.initial_method = "initial_pose";
+        if (params_.initial_pose_landmark_moves && in.landmarks.size() >= 4) fits = pnp_candidates(in.landmarks, K);
     } else {
         if (in.landmarks.size() < 4) throw InputError("landmarks", "needs at least 4 pairs or an initial pose");
-        const auto fits = pnp_candidates(in.landmarks, K);
+        fits = pnp_candidates(in.landmarks, K);
         T0 = fits.front().T_camera_from_world;
         res.initial_method = fits.front().method;
-        for (size_t i = 1; i < fits.size(); ++i) alternatives.push_back(fits[i].T_camera_from_world);
     }
     res.initial_T_camera_from_world = T0;
     if (in.landmarks.size() >= 2) {
@@ -928,7 +931,13 @@ RegistrationResult Registration::run(const PhotoInput& in, const Progress* progr
     const Eigen::Vector3d pivot_cam = T0.topLeftCorner<3, 3>() * res.pivot_world_mm + T0.topRightCorner<3, 1>();
     scorer.set_depth(pivot_cam.z());
     std::vector<PoseParams> starts = params_.starts;
-    for (const Pose& A : alternatives) starts.push_back(params_between(T0, A, pivot_cam));
+    // Each other fit as a move about the pivot from the best one; from the landmarks alone the best
+    // fit is T0, and the move takes T0 to that fit exactly.
+    for (size_t i = 1; i < fits.size(); ++i) {
+        const Pose& F = fits.front().T_camera_from_world;
+        const Eigen::Vector3d pivot_F = F.topLeftCorner<3, 3>() * res.pivot_world_mm + F.topRightCorner<3, 1>();
+        starts.push_back(params_between(F, fits[i].T_camera_from_world, pivot_F));
+    }
     // The optimiser's translation axes (columns, camera frame): the camera's, or depth along the
     // pivot's line of sight (see RegistrationParams::depth_along_pivot_ray).
     Eigen::Matrix3d B = Eigen::Matrix3d::Identity();

@@ -267,6 +267,73 @@ TEST(Registration, ScreensEveryStartThenSearchesOnlyTheKeptOnesAndRefinesTheWinn
     EXPECT_THROW(registration_params_from_json(bad, "params"), InputError);
 }
 
+// A given pose (the protocol's misaligned start, or a pose from the last session) had no share of
+// the landmarks' other fits, which are starts from the landmarks alone. With
+// initial_pose_landmark_moves the moves from their best fit to the others are starts for it too:
+// given that best fit itself, the registration is exactly the one from the landmarks alone.
+TEST(Registration, AGivenPoseGetsTheLandmarksOtherFitsAsMovesAndTheirBestFitRegistersAsTheLandmarksDo) {
+    const Fixture& f = fixture();
+    const auto fits = pnp_candidates(f.c.photo.landmarks, f.c.photo.camera);
+    ASSERT_GE(fits.size(), 2u) << "the test needs landmarks that more than one pose explains";
+    RegistrationParams p = small_params();
+    p.starts.resize(1);
+    p.search_stages.resize(1);
+    p.keep_best = 1;
+    p.light_rounds = 1;
+    p.refine_stages.clear();
+    auto screened = [&](const RegistrationResult& r) {
+        int n = 0;
+        for (const auto& s : r.stages) n += s.name == p.search_stages.front().name;
+        return n;
+    };
+    Registration plain(f.c.volume, f.c.mask, p);
+    PhotoInput given = f.c.photo;
+    given.initial_pose = fits.front().T_camera_from_world;
+    const RegistrationResult without = plain.run(given);
+    EXPECT_EQ(screened(without), 1);  // the given pose alone
+
+    p.initial_pose_landmark_moves = true;
+    Registration moves(f.c.volume, f.c.mask, p);
+    const RegistrationResult with = moves.run(given);
+    EXPECT_EQ(screened(with), int(fits.size()));
+    const RegistrationResult alone = moves.run(f.c.photo);  // from the landmarks
+    EXPECT_EQ(alone.initial_method.rfind("pnp", 0), 0u);
+    EXPECT_EQ(with.initial_method, "initial_pose");
+    ASSERT_EQ(with.stages.size(), alone.stages.size());
+    for (size_t i = 0; i < with.stages.size(); ++i) EXPECT_EQ(with.stages[i].best_cost, alone.stages[i].best_cost) << i;
+    EXPECT_EQ(with.T_camera_from_world, alone.T_camera_from_world);
+    EXPECT_EQ(result_to_json(with)["parameters"]["initial_pose_landmark_moves"], true);
+
+    // A given pose 4 mm aside: each start is the given pose moved as the best fit moves to the
+    // other fit, about the same point of the brain; not the other fit itself. A screen of one
+    // evaluation ends where it starts, so its report shows the start.
+    p.search_stages.front().max_evaluations = 1;
+    Registration first_only(f.c.volume, f.c.mask, p);
+    PhotoInput aside = f.c.photo;
+    Pose T = fits.front().T_camera_from_world;
+    T(0, 3) += 4.0;
+    aside.initial_pose = T;
+    const RegistrationResult moved = first_only.run(aside);
+    ASSERT_EQ(screened(moved), int(fits.size()));
+    const Pose& F = fits.front().T_camera_from_world;
+    const Eigen::Vector3d c = moved.pivot_world_mm;
+    for (size_t i = 1; i < fits.size(); ++i) {
+        const Pose& A = fits[i].T_camera_from_world;
+        const Pose& S = moved.stages[i].T_camera_from_world;  // the screen of start i
+        ASSERT_EQ(moved.stages[i].start, int(i));
+        // The relative motion S T^-1 is A F^-1 up to where it turns about: the same rotation ...
+        const Eigen::Matrix3d R_move = A.topLeftCorner<3, 3>() * F.topLeftCorner<3, 3>().transpose();
+        const Eigen::Matrix3d R_start = S.topLeftCorner<3, 3>() * T.topLeftCorner<3, 3>().transpose();
+        EXPECT_LT((R_move - R_start).norm(), 1e-9) << i;
+        // ... and the brain's pivot displaced in the camera frame as the fits displace it.
+        const Eigen::Vector3d d_fits = (A * c.homogeneous()).head<3>() - (F * c.homogeneous()).head<3>();
+        const Eigen::Vector3d d_start = (S * c.homogeneous()).head<3>() - (T * c.homogeneous()).head<3>();
+        EXPECT_LT((d_fits - d_start).norm(), 1e-6) << i;
+        // Which is not the other fit itself (that would undo the given pose's 4 mm).
+        EXPECT_GT(((S * c.homogeneous()).head<3>() - (A * c.homogeneous()).head<3>()).norm(), 3.9) << i;
+    }
+}
+
 // The opt-in search options (depth along the pivot's line of sight, a depth scan before the
 // final stages): a scan of 2 * steps + 1 renders recorded as its own stage, a rigid result,
 // saved and read back, and bad values refused.

@@ -97,6 +97,12 @@ struct RegistrationParams {
     /// true, tz along the line of sight through the pivot and tx, ty across it, so a depth step
     /// only scales the picture about the ROI instead of also shifting it sideways.
     bool depth_along_pivot_ray = false;
+    /// With an initial pose (PhotoInput::initial_pose) and >= 4 landmarks, the landmarks' own
+    /// ambiguity becomes extra starts too: the move from their best fit to each other fit that
+    /// explains them about as well (pnp_candidates: the mirror turn and the depth that near-planar
+    /// landmarks on a narrow view leave open), applied about the pivot to the given pose. From the
+    /// landmarks alone those fits are starts already; a given pose had none of them.
+    bool initial_pose_landmark_moves = false;
     /// Depth scan before the final (and refine) stages: the cost at 2 * depth_scan_steps + 1
     /// points depth_scan_mm apart along the line of sight through the pivot (a pure change of
     /// scale about the ROI), scored at the stage's size and blur; the simplex starts from the
