@@ -57,6 +57,8 @@ void add_register(CLI::App& app) {
             if (!opt->params_file.empty())
                 params = registration_params_from_json(read_json_file(opt->params_file), opt->params_file);
             params.renderer_factory = renderer_factory(parse_renderer_kind(opt->renderer));
+            // --init pnp|ortho: that one fit is the start, without the landmarks' other fits.
+            if (opt->init != "auto") params.initial_pose_landmark_moves = false;
             for (const std::string& out : {opt->out, opt->trace_csv}) {
                 if (out.empty()) continue;
                 const fs::path folder = fs::absolute(fs::path(out)).parent_path();

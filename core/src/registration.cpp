@@ -142,6 +142,13 @@ RegistrationParams RegistrationParams::defaults() {
     // 12 mm trends and the sulcal hull; about half of a 250 px frame's rays go (docs/registration.md,
     // "Fewer rays where only the wide blurs look").
     p.outer_ray_stride = 2;
+    // Eighteenth session: a given pose (the protocol's misaligned start) gets the landmarks' other
+    // fits as moves, as the landmark pose gets them as starts. On the chris head's narrow DSLR view
+    // (case 0003) PnP's best fit leaves the targets 19 mm off in depth; from the landmarks another
+    // fit wins (0.67 mm), and misaligned starts without it ended 2.51 mm off on average, 1.83 with
+    // it: protocol chris 1.153 -> 0.979 mm; the other heads as before over 580 paired runs
+    // (docs/registration.md, "The landmarks' other fits for a given pose").
+    p.initial_pose_landmark_moves = true;
     return p;
 }
 
@@ -911,7 +918,12 @@ RegistrationResult Registration::run(const PhotoInput& in, const Progress* progr
     if (in.initial_pose) {
         T0 = *in.initial_pose;
         res.initial_method = "initial_pose";
-        if (params_.initial_pose_landmark_moves && in.landmarks.size() >= 4) fits = pnp_candidates(in.landmarks, K);
+        // Not from landmarks nearly on a line: their other fits are then samples of a free turn
+        // about it, not a few distinct poses, and the given pose is better evidence of that turn
+        // (on the featureless MNI152 photos such starts ended at wrong turns the NMI preferred).
+        if (params_.initial_pose_landmark_moves && in.landmarks.size() >= 4 &&
+            landmark_spread_warning(landmark_spread(in.landmarks)).empty())
+            fits = pnp_candidates(in.landmarks, K);
     } else {
         if (in.landmarks.size() < 4) throw InputError("landmarks", "needs at least 4 pairs or an initial pose");
         fits = pnp_candidates(in.landmarks, K);

@@ -271,6 +271,7 @@ TEST(Registration, ScreensEveryStartThenSearchesOnlyTheKeptOnesAndRefinesTheWinn
 // the landmarks' other fits, which are starts from the landmarks alone. With
 // initial_pose_landmark_moves the moves from their best fit to the others are starts for it too:
 // given that best fit itself, the registration is exactly the one from the landmarks alone.
+// Landmarks nearly on a line give none.
 TEST(Registration, AGivenPoseGetsTheLandmarksOtherFitsAsMovesAndTheirBestFitRegistersAsTheLandmarksDo) {
     const Fixture& f = fixture();
     const auto fits = pnp_candidates(f.c.photo.landmarks, f.c.photo.camera);
@@ -286,6 +287,9 @@ TEST(Registration, AGivenPoseGetsTheLandmarksOtherFitsAsMovesAndTheirBestFitRegi
         for (const auto& s : r.stages) n += s.name == p.search_stages.front().name;
         return n;
     };
+    EXPECT_TRUE(p.initial_pose_landmark_moves);  // the default since the eighteenth session
+    EXPECT_FALSE(RegistrationParams::seed_schedule().initial_pose_landmark_moves);
+    p.initial_pose_landmark_moves = false;
     Registration plain(f.c.volume, f.c.mask, p);
     PhotoInput given = f.c.photo;
     given.initial_pose = fits.front().T_camera_from_world;
@@ -332,6 +336,22 @@ TEST(Registration, AGivenPoseGetsTheLandmarksOtherFitsAsMovesAndTheirBestFitRegi
         // Which is not the other fit itself (that would undo the given pose's 4 mm).
         EXPECT_GT(((S * c.homogeneous()).head<3>() - (A * c.homogeneous()).head<3>()).norm(), 3.9) << i;
     }
+
+    // Landmarks nearly on a line (squeezed towards the line through their extremes, in the world
+    // and in the photo alike, to a spread under the warning's): no moves, the given pose alone.
+    PhotoInput line = aside;
+    auto squeeze = [](const auto& a, const auto& b, const auto& x) {
+        const auto d = (b - a).normalized().eval();
+        const auto q = (a + d * d.dot(x - a)).eval();
+        return (q + 0.05 * (x - q)).eval();
+    };
+    const Landmark l0 = line.landmarks.front(), l1 = line.landmarks.back();
+    for (Landmark& l : line.landmarks) {
+        l.world_mm = squeeze(l0.world_mm, l1.world_mm, l.world_mm);
+        l.pixel = squeeze(l0.pixel, l1.pixel, l.pixel);
+    }
+    ASSERT_FALSE(landmark_spread_warning(landmark_spread(line.landmarks)).empty());
+    EXPECT_EQ(screened(first_only.run(line)), 1);
 }
 
 // The opt-in search options (depth along the pivot's line of sight, a depth scan before the

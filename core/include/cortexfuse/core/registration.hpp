@@ -101,7 +101,9 @@ struct RegistrationParams {
     /// ambiguity becomes extra starts too: the move from their best fit to each other fit that
     /// explains them about as well (pnp_candidates: the mirror turn and the depth that near-planar
     /// landmarks on a narrow view leave open), applied about the pivot to the given pose. From the
-    /// landmarks alone those fits are starts already; a given pose had none of them.
+    /// landmarks alone those fits are starts already; a given pose had none of them. Not for
+    /// landmarks nearly on a line (landmark_spread_warning()), whose other fits only sample the
+    /// free turn about it.
     bool initial_pose_landmark_moves = false;
     /// Depth scan before the final (and refine) stages: the cost at 2 * depth_scan_steps + 1
     /// points depth_scan_mm apart along the line of sight through the pivot (a pure change of
