@@ -354,6 +354,120 @@ TEST(Registration, AGivenPoseGetsTheLandmarksOtherFitsAsMovesAndTheirBestFitRegi
     EXPECT_EQ(screened(first_only.run(line)), 1);
 }
 
+// The landmarks' other fits lose the first screen easily: 30 evaluations at FWHM 8 mm from a start
+// 10 mm / 5 deg off. search_keep_fits carries the best of them through the later search stages
+// beside the search_keep best, but only when the screen kept none of them.
+TEST(Registration, TheBestOfTheLandmarksOtherFitsGoesOnWhenTheScreenDropsThemAll) {
+    const Fixture& f = fixture();
+    ASSERT_TRUE(f.c.spec.truth.has_value());
+    const auto fits = pnp_candidates(f.c.photo.landmarks, f.c.photo.camera);
+    ASSERT_GE(fits.size(), 2u) << "the test needs landmarks that more than one pose explains";
+    RegistrationParams p = small_params();
+    EXPECT_EQ(p.search_keep_fits, 1);  // the default since the nineteenth session
+    EXPECT_EQ(RegistrationParams::seed_schedule().search_keep_fits, 0);
+    // Two plain starts at the truth (the given pose), so the moves lose the screen.
+    p.starts = {{0, 0, 0, 0, 0, 0}, {0, 0, 0, 0, 0, 0}};
+    p.search_stages.resize(2);
+    p.search_keep = 1;
+    p.keep_best = 1;
+    p.estimate_light = false;
+    p.final_stages.resize(1);
+    p.refine_stages.clear();
+    PhotoInput given = f.c.photo;
+    given.initial_pose = f.c.spec.truth->T_camera_from_world;
+    const std::string screen = p.search_stages[0].name, later = p.search_stages[1].name;
+    // Start index -> its cost after the screen, and the starts that went on.
+    auto stages_of = [&](const RegistrationResult& r) {
+        std::map<int, double> screened;
+        std::vector<int> went_on;
+        for (const auto& s : r.stages) {
+            if (s.name == screen) screened[s.start] = s.best_cost;
+            if (s.name == later) went_on.push_back(s.start);
+        }
+        return std::make_pair(screened, went_on);
+    };
+    const int n_plain = int(p.starts.size()), n_starts = n_plain + int(fits.size()) - 1;
+
+    p.search_keep_fits = 0;
+    const auto [screened0, on0] = stages_of(Registration(f.c.volume, f.c.mask, p).run(given));
+    ASSERT_EQ(int(screened0.size()), n_starts);
+    int best_move = -1;
+    for (int i = n_plain; i < n_starts; ++i) {
+        ASSERT_GT(screened0.at(i), screened0.at(0)) << "move " << i << " did not lose the screen";
+        if (best_move < 0 || screened0.at(i) < screened0.at(best_move)) best_move = i;
+    }
+    EXPECT_EQ(on0, std::vector<int>{0});
+
+    p.search_keep_fits = 1;
+    const RegistrationResult r1 = Registration(f.c.volume, f.c.mask, p).run(given);
+    const auto [screened1, on1] = stages_of(r1);
+    EXPECT_EQ(screened1, screened0);  // the screen itself is the same
+    EXPECT_EQ(on1, (std::vector<int>{0, best_move}));
+    EXPECT_EQ(result_to_json(r1)["parameters"]["search_keep_fits"], 1);
+
+    // When the screen keeps a move anyway (here: all but one start go on), nothing is added.
+    p.search_keep = n_starts - 1;
+    const auto [screened2, on2] = stages_of(Registration(f.c.volume, f.c.mask, p).run(given));
+    EXPECT_EQ(int(on2.size()), n_starts - 1);
+
+    nlohmann::json bad = to_json(p);
+    bad["search_keep_fits"] = -1;
+    EXPECT_THROW(registration_params_from_json(bad, "params"), InputError);
+}
+
+// With light_per_finalist each finalist has the light estimated at its own pose before its final
+// stages, and the winner's light is the one the result reports and renders with.
+TEST(Registration, EachFinalistCanHaveTheLightEstimatedAtItsOwnPose) {
+    const Fixture& f = fixture();
+    RegistrationParams p = small_params();
+    p.starts = {{0, 0, 0, 0, 0, 0}, {8, 0, 0, 10, 0, 0}};
+    p.search_stages = {{"screen", 4, 2, 2, 64, 8, 0.1, 0.1}};
+    p.keep_best = 2;
+    p.final_stages = {{"final", 2, 1, 1, 128, 8, 0.05, 0.05}};
+    p.refine_stages.clear();
+    p.estimate_light = true;
+    p.light_rounds = 1;
+    p.light_grid = 3;
+    p.light_width_px = 64;
+    auto lights_before_finals = [](const RegistrationResult& r) {
+        std::vector<int> at;  // the finalist each light estimate was made for
+        for (size_t i = 0; i + 1 < r.stages.size(); ++i)
+            if (r.stages[i].name == "light") at.push_back(r.stages[i].start);
+        return at;
+    };
+    EXPECT_TRUE(RegistrationParams::defaults().light_per_finalist);  // since the nineteenth session
+    EXPECT_FALSE(RegistrationParams::seed_schedule().light_per_finalist);
+    p.light_per_finalist = false;
+    const RegistrationResult once = Registration(f.c.volume, f.c.mask, p).run(f.c.photo);
+    EXPECT_EQ(lights_before_finals(once), std::vector<int>{0});
+
+    p.light_per_finalist = true;
+    Registration reg(f.c.volume, f.c.mask, p);
+    const RegistrationResult own = reg.run(f.c.photo);
+    EXPECT_EQ(lights_before_finals(own), (std::vector<int>{0, 1}));
+    // The first finalist's light and final stage are those of the single estimate.
+    auto first = [](const RegistrationResult& r, const std::string& name) {
+        for (const auto& s : r.stages)
+            if (s.name == name) return s.best_cost;
+        return 0.0;
+    };
+    EXPECT_EQ(first(own, "light"), first(once, "light"));
+    EXPECT_EQ(first(own, "final"), first(once, "final"));
+    // The result's light is the winner's (the first finalist, from the start far aside losing): at
+    // the final pose the result's similarity is the one its final stage reached under that light,
+    // and scored with the reported light it is the same.
+    std::vector<const StageReport*> finals;
+    for (const auto& st : own.stages)
+        if (st.name == "final") finals.push_back(&st);
+    ASSERT_EQ(finals.size(), 2u);
+    ASSERT_LT(finals[0]->best_cost, finals[1]->best_cost) << "the test needs the first finalist to win";
+    EXPECT_EQ(own.similarity, finals[0]->best_similarity);
+    const Registration::PoseScore s = reg.score(f.c.photo, own.T_camera_from_world, own.initial_T_camera_from_world,
+                                                p.final_stages.back(), own.light_direction_camera);
+    EXPECT_NEAR(s.similarity, own.similarity, 1e-9);
+    EXPECT_EQ(result_to_json(own)["parameters"]["light_per_finalist"], true);
+}
+
 // The opt-in search options (depth along the pivot's line of sight, a depth scan before the
 // final stages): a scan of 2 * steps + 1 renders recorded as its own stage, a rigid result,
 // saved and read back, and bad values refused.

@@ -69,6 +69,10 @@ struct RegistrationParams {
     /// Also estimate the light after the first search stage, at the best screened pose, so
     /// the later search stages render with it rather than with a headlight.
     bool light_after_screen = false;
+    /// Before the final stages, the light is estimated at each finalist's own pose rather than
+    /// once at the best one's: a finalist at a wrong pose then does not hand the others a light
+    /// fitted to it, and each pose is judged with the light that explains the photo best there.
+    bool light_per_finalist = false;
     /// Working width the light grid is scored at; 0: the first final stage's. The light's
     /// direction is a broad trend, visible at a small size.
     int light_width_px = 0;
@@ -153,6 +157,12 @@ struct RegistrationParams {
     /// After the first search stage only this many starts (the lowest costs) go on through the
     /// later search stages: a cheap screen of every subspace, then work where it pays. 0: all.
     int search_keep = 0;
+    /// Beside those, the best this many of the starts that come from the landmarks' other fits
+    /// (from the landmarks alone: the fits after the best; with an initial pose: the moves of
+    /// initial_pose_landmark_moves) go on too when none of them is among the search_keep. A
+    /// start 10 mm / 5 deg off screened at FWHM 8 mm for 30 evaluations can lose to a plain start
+    /// that is further from the truth. 0: the screen alone decides.
+    int search_keep_fits = 0;
     int keep_best = 1;  // candidates carried into the final stages
     std::vector<StageParams> final_stages;
     /// Stages of the later light rounds (the winner only, after the light is re-estimated at
