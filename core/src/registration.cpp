@@ -968,6 +968,8 @@ RegistrationResult Registration::run(const PhotoInput& in, const Progress* progr
         const Eigen::Vector3d pivot_F = F.topLeftCorner<3, 3>() * res.pivot_world_mm + F.topRightCorner<3, 1>();
         for (size_t i = 1; i < fits.size(); ++i) starts.push_back(params_between(F, fits[i].T_camera_from_world, pivot_F));
     }
+    // Starts from n_plain on are the landmarks' other fits (RegistrationParams::search_keep_fits).
+    const size_t n_plain = params_.starts.size();
     // The optimiser's translation axes (columns, camera frame): the camera's, or depth along the
     // pivot's line of sight (see RegistrationParams::depth_along_pivot_ray).
     Eigen::Matrix3d B = Eigen::Matrix3d::Identity();
@@ -992,7 +994,7 @@ RegistrationResult Registration::run(const PhotoInput& in, const Progress* progr
     // them go on to the final stages.
     const bool pruned = params_.search_stages.size() > 1 && params_.search_keep > 0;
     // (At most: the landmarks' other fits add search_keep_fits only when the screen drops them all.)
-    const int fit_starts = int(starts.size() - std::min(starts.size(), params_.starts.size()));
+    const int fit_starts = int(starts.size() - n_plain);
     const int screened = pruned ? std::min(params_.search_keep + std::min(fit_starts, params_.search_keep_fits), int(starts.size()))
                                 : int(starts.size());
     const int finalists = std::min(params_.keep_best, screened);
@@ -1136,9 +1138,7 @@ RegistrationResult Registration::run(const PhotoInput& in, const Progress* progr
             std::vector<int> order(candidates.size());
             for (size_t i = 0; i < order.size(); ++i) order[i] = int(i);
             std::stable_sort(order.begin(), order.end(), [&](int a, int b) { return by_cost(candidates[size_t(a)], candidates[size_t(b)]); });
-            // The landmarks' other fits (starts after params_.starts): the best of them go on too
-            // when the screen dropped them all.
-            const size_t n_plain = params_.starts.size();
+            // The landmarks' other fits: the best of them go on too when the screen dropped them all.
             const bool fit_kept = std::any_of(order.begin(), order.begin() + params_.search_keep,
                                               [&](int i) { return size_t(start_of[size_t(i)]) >= n_plain; });
             std::vector<int> fits_extra;
