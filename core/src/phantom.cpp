@@ -35,6 +35,8 @@ void PhantomParams::validate() const {
     prob("blood-prob", blood_prob);
     if (sulcal_blood_prob) prob("sulcal-blood-prob", *sulcal_blood_prob);
     if (blood_film_prob) prob("blood-film-prob", *blood_film_prob);
+    prob("lamp-spot-prob", lamp_spot_prob);
+    prob("skin-prep-prob", skin_prep_prob);
     prob("distortion-prob", distortion_prob);
     prob("png-fraction", png_fraction);
     range2("distance_mm", distance_mm, 100, 1000);
@@ -179,6 +181,16 @@ struct Crani {
     // thickness at the centre); centres and radii in (a, b) mm.
     double sah = 0, sah_r = 10, film_mm = 0, film_r = 10;
     Vec2 sah_c = Vec2::Zero(), film_c = Vec2::Zero();
+    // The OR lamp's spot (spot_r_mm = 0: lit evenly, as by a flash): half-light radius on the
+    // field, the light outside it as a fraction of the centre's, and its centre in (a, b) mm.
+    // A surgical light is focused on the opening, so the drapes lie in its dimmer skirt.
+    double spot_r_mm = 0, spot_floor = 1;
+    Vec2 spot_c = Vec2::Zero();
+    // Skin prep (povidone-iodine) staining the scalp around the opening: strength 0..1 (0: none).
+    double prep = 0;
+    // Clips are placed by hand: each one's angle (fraction of the spacing) and length vary.
+    uint64_t clip_seed = 0;
+    double clip_jitter = 0;
 
     /// Whether (a, b), outside the bone cut, lies under the reflected dural flap; `edge_mm`: how
     /// far inside the flap's free edge.
@@ -261,16 +273,26 @@ struct Crani {
     bool clip_at(const Vec2& ab, double* across) const {
         if (n_clips == 0) return false;
         const double th = std::atan2(ab.y(), ab.x()), rho = ab.norm();
+        if (rho <= 0) return false;
         const double step = 2 * kPi / n_clips;
-        const double k = std::round((th - clip_th0) / step);
-        const double thc = clip_th0 + k * step;
-        const double r0 = r_skin(thc) - 1.0;
-        const Vec2 dir(std::cos(thc), std::sin(thc)), side(-dir.y(), dir.x());
-        const Vec2 q = ab - r0 * dir;
-        const double along = q.dot(dir), acr = q.dot(side);
-        if (along < 0 || along > clip_len || std::abs(acr) > clip_w / 2 || rho <= 0) return false;
-        if (across) *across = acr / (clip_w / 2);
-        return true;
+        const double k0 = std::round((th - clip_th0) / step);
+        // A clip's own offsets (clip_jitter 0: evenly spaced, all alike); with them the nearest
+        // slot's clip may have moved away, so its neighbours are tried too.
+        for (double k = k0 - 1; k <= k0 + 1; ++k) {
+            const int slot = ((int(k) % n_clips) + n_clips) % n_clips;
+            const uint64_t h = splitmix64(clip_seed + uint64_t(slot));
+            const double j1 = double(h >> 11) * 0x1.0p-53 - 0.5, j2 = double((h * 0x9E3779B97F4A7C15ull) >> 11) * 0x1.0p-53 - 0.5;
+            const double thc = clip_th0 + (k + clip_jitter * 0.6 * j1) * step;
+            const double len = clip_len * (1 + clip_jitter * 0.3 * j2);
+            const double r0 = r_skin(thc) - 1.0;
+            const Vec2 dir(std::cos(thc), std::sin(thc)), side(-dir.y(), dir.x());
+            const Vec2 q = ab - r0 * dir;
+            const double along = q.dot(dir), acr = q.dot(side);
+            if (along < 0 || along > len || std::abs(acr) > clip_w / 2) continue;
+            if (across) *across = acr / (clip_w / 2);
+            return true;
+        }
+        return false;
     }
     /// Nearest intersection of a ray with the sphere of radius Rc + h; false if missed.
     bool hit_sphere(const Vec3& C, const Vec3& d, double h, Vec3& q) const {
@@ -385,6 +407,7 @@ void draw_vessels(Texture& tx, const std::vector<VesselPath>& vessels) {
 // ---------------------------------------------------------------- appearance
 struct Look {
     Col cortex, sulcus, vein, artery, small_vessel, bone, bone_wall, dura, skin, skin_cut, drape, gauze, blood;
+    Col iodine = rgb(150, 78, 30);  // dried povidone-iodine on skin
     Col light = Col(1, 1, 1), wb = Col(1, 1, 1);
     double ambient = 0.2, diffuse = 0.9, spec = 1.0, shininess = 60, exposure = 1.0;
     double bump_mm = 0.12, bump_scale_mm = 0.8, mottle = 0.12;
@@ -627,6 +650,21 @@ PhantomCase generate_phantom_case(const PhantomSurface& S, const PhantomParams& 
             cr.film_c = inside();
             cr.film_r = rbd.uni(0.3, 0.7) * rc;
         }
+    }
+    {
+        // The lamp's spot, the skin prep and the clips' irregularity: a stream of their own too.
+        Rng rlp(splitmix64(P.seed * 0xD6E8FEB86659FD93ull + splitmix64(uint64_t(index) + 0x1A3Dull)));
+        // Every value is drawn whatever the chances, so that one option does not move another.
+        const bool spot = rlp.chance(P.lamp_spot_prob), prep = rlp.chance(P.skin_prep_prob);
+        // Focused on the opening: half light at 1.5-3 times its radius (30-120 mm), nearly flat
+        // over the cortex, its centre off the opening's by up to a quarter of the radius.
+        const double spot_r = cr.R1 * rlp.uni(1.5, 3.0), floor = rlp.uni(0.15, 0.5);
+        const Vec2 spot_c = Vec2(rlp.uni(-0.25, 0.25), rlp.uni(-0.25, 0.25)) * cr.R1;
+        const double prep_k = rlp.uni(0.35, 0.85);
+        if (spot) cr.spot_r_mm = spot_r, cr.spot_floor = floor, cr.spot_c = spot_c;
+        if (prep) cr.prep = prep_k;
+        cr.clip_seed = rlp.u32();
+        cr.clip_jitter = rlp.uni(0.3, 1.0);
     }
 
     // ---- pose: near the outward normal, tilted, random roll
@@ -970,6 +1008,13 @@ PhantomCase generate_phantom_case(const PhantomSurface& S, const PhantomParams& 
                     const float t = fbm(float(ab_s.x() / 3), float(ab_s.y() / 3), ns + 8, 4);
                     const double edge = hs ? rho_s - cr.r_skin(th_s) : 0;
                     Col alb = L.skin * (0.85f + 0.3f * t);
+                    if (cr.prep > 0) {
+                        // Iodine prep dries unevenly: blotches, streaks along the sponge's strokes.
+                        const float blot = fbm(float(ab_s.x() / 14), float(ab_s.y() / 14), ns + 31, 3);
+                        const float streak = fbm(float(ab_s.x() / 40), float(ab_s.y() / 6), ns + 32, 2);
+                        const float m = float(cr.prep) * smoothstep(0.3f, 0.65f, 0.7f * blot + 0.3f * streak);
+                        alb = mix(alb, L.iodine * (0.7f + 0.6f * t), m);
+                    }
                     alb = mix(alb, L.skin_cut, float(1 - smoothstep(0.f, 5.f, float(edge))));
                     if (lay == kSkinCut) {
                         const float t2 = fbm(float(u * 0.15), float(v * 0.15), ns + 12, 3);
@@ -1292,12 +1337,27 @@ PhantomCase generate_phantom_case(const PhantomSurface& S, const PhantomParams& 
     cv::Mat photo(rh, rw, CV_32FC3);
     {
         const double cxn = Kr.cx, cyn = Kr.cy, rn = std::hypot(rw * 0.5, rh * 0.5);
+        // The spot's centre and half-light radius in the picture (the field is nearly facing
+        // the camera; its tilt and the lens' distortion are left out of the spot's shape).
+        Vec2 spot_px(cxn, cyn);
+        double spot_r_px = 1;
+        if (cr.spot_r_mm > 0) {
+            const Vec3 p = cr.c + cr.spot_c.x() * cr.e1 + cr.spot_c.y() * cr.e2;
+            const Vec3 q = T.topLeftCorner<3, 3>() * p + T.topRightCorner<3, 1>();
+            if (q.z() > 1) spot_px = Vec2(Kr.fx * q.x() / q.z() + Kr.cx, Kr.fy * q.y() / q.z() + Kr.cy);
+            spot_r_px = std::max(1.0, cr.spot_r_mm * Kr.fx / std::max(1.0, q.z()));
+        }
         for (int v = 0; v < rh; ++v) {
             cv::Vec3f* row = photo.ptr<cv::Vec3f>(v);
             for (int u = 0; u < rw; ++u) {
                 const size_t i = size_t(v) * rw + u;
                 const double r2 = (std::pow(u - cxn, 2) + std::pow(v - cyn, 2)) / (rn * rn);
-                const float vig = float(1 - L.vignette * r2);
+                float vig = float(1 - L.vignette * r2);
+                if (cr.spot_r_mm > 0) {
+                    // The lamp's spot, flat-topped as a surgical light's field is.
+                    const double d = std::hypot(u - spot_px.x(), v - spot_px.y()) / spot_r_px;
+                    vig *= float(cr.spot_floor + (1 - cr.spot_floor) * std::exp(-0.6931 * d * d * d));
+                }
                 const Col c = img[i] * L.wb * float(L.exposure) * vig;  // linear light, glare above 1
                 row[u] = cv::Vec3f(c[2], c[1], c[0]);                    // BGR
             }
@@ -1371,6 +1431,7 @@ PhantomCase generate_phantom_case(const PhantomSurface& S, const PhantomParams& 
           << " towels=" << cr.n_towels << " burr_holes=" << cr.n_burr << " clips=" << cr.n_clips
           << " dural_flap=" << (cr.flap_w > 0 ? "yes" : "no") << " arachnoid_veil=" << fmt(cr.veil)
           << " sulcal_blood=" << fmt(cr.sah) << " blood_film_mm=" << fmt(cr.film_mm)
+          << " lamp_spot_mm=" << fmt(cr.spot_r_mm, 0) << " spot_floor=" << fmt(cr.spot_floor) << " skin_prep=" << fmt(cr.prep)
           << " shininess=" << fmt(L.shininess, 0) << " spec=" << fmt(L.spec) << " exposure=" << fmt(L.exposure)
           << " noise_sd=" << fmt(L.noise_sd)
           << " jpeg_quality=" << (out.jpeg ? out.jpeg_quality : (apply_jpeg_artefacts ? L.jpeg_quality : 0));

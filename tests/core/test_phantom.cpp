@@ -248,6 +248,79 @@ TEST_F(Phantom, SulcalBloodAndABloodFilmRedderTheCortexAndLeaveTheCaseAlone) {
     EXPECT_THROW(bad.validate(), InputError);
 }
 
+// The OR lamp's spot is light: it dims the skin and drapes more than the opening it is aimed
+// at. The iodine prep stains the scalp only, browner (it takes blue and green, not red). Both
+// leave the case (pose, landmarks, ROI, targets) as it was.
+TEST_F(Phantom, TheLampsSpotAndTheSkinPrepChangeLightAndScalpAndLeaveTheCaseAlone) {
+    PhantomParams p;
+    p.seed = 9;
+    p.dslr_fraction = 0.0;
+    p.gauze_prob = p.blood_prob = 0.0;
+    p.lamp_spot_prob = p.skin_prep_prob = 0.0;
+    p.fill_fraction = {0.5, 0.55};  // framed with the field around the opening in view
+    const PhantomCase plain = generate_phantom_case(*surface_, p, 0);
+    EXPECT_NE(plain.notes.find(" lamp_spot_mm=0 spot_floor=1.00 skin_prep=0.00"), std::string::npos) << plain.notes;
+    cv::Mat roi_mask = cv::Mat::zeros(plain.photo_bgr.size(), CV_8U);
+    std::vector<cv::Point> poly;
+    for (const auto& r : plain.roi_points) poly.emplace_back(int(r.x()), int(r.y()));
+    cv::fillPoly(roi_mask, std::vector<std::vector<cv::Point>>{poly}, cv::Scalar(255));
+    cv::Mat near_roi;
+    cv::dilate(roi_mask, near_roi, cv::getStructuringElement(cv::MORPH_ELLIPSE, cv::Size(41, 41)));
+    for (const bool spot : {true, false}) {
+        SCOPED_TRACE(spot ? "lamp spot" : "skin prep");
+        PhantomParams q = p;
+        (spot ? q.lamp_spot_prob : q.skin_prep_prob) = 1.0;
+        const PhantomCase c = generate_phantom_case(*surface_, q, 0);
+        const std::string key = spot ? " lamp_spot_mm=" : " skin_prep=";
+        const size_t at = c.notes.find(key);
+        ASSERT_NE(at, std::string::npos) << c.notes;
+        EXPECT_GT(std::stod(c.notes.substr(at + key.size())), 0.0) << c.notes;
+        EXPECT_TRUE(c.T_camera_from_world.isApprox(plain.T_camera_from_world, 0));
+        ASSERT_EQ(c.landmarks.size(), plain.landmarks.size());
+        for (size_t k = 0; k < c.landmarks.size(); ++k) EXPECT_EQ(c.landmarks[k].pixel, plain.landmarks[k].pixel);
+        EXPECT_EQ(c.roi_points, plain.roi_points);
+        EXPECT_EQ(c.targets_world_mm, plain.targets_world_mm);
+        ASSERT_EQ(c.photo_bgr.size(), plain.photo_bgr.size());
+        // Mean brightness (sum of channels) inside the ROI and outside its neighbourhood.
+        double in_new = 0, in_old = 0, out_new = 0, out_old = 0;
+        double blue_new = 0, red_new = 0, blue_old = 0, red_old = 0;
+        int n_in = 0, n_out = 0, changed = 0, changed_in_roi = 0;
+        for (int y = 0; y < c.photo_bgr.rows; ++y)
+            for (int x = 0; x < c.photo_bgr.cols; ++x) {
+                const cv::Vec3b a = c.photo_bgr.at<cv::Vec3b>(y, x), b = plain.photo_bgr.at<cv::Vec3b>(y, x);
+                const double sa = a[0] + a[1] + a[2], sb = b[0] + b[1] + b[2];
+                const bool clipped = std::max({a[0], a[1], a[2], b[0], b[1], b[2]}) == 255;  // says nothing of the light
+                if (clipped) continue;
+                if (roi_mask.at<uint8_t>(y, x)) in_new += sa, in_old += sb, ++n_in;
+                else if (!near_roi.at<uint8_t>(y, x)) out_new += sa, out_old += sb, ++n_out;
+                if (std::abs(sa - sb) < 45) continue;  // JPEG ringing and noise aside
+                ++changed;
+                changed_in_roi += roi_mask.at<uint8_t>(y, x) != 0;
+                blue_new += a[0], red_new += a[2], blue_old += b[0], red_old += b[2];
+            }
+        ASSERT_GT(n_in, 1000);
+        ASSERT_GT(n_out, 1000);
+        const double ratio_in = in_new / in_old, ratio_out = out_new / out_old;
+        if (spot) {
+            EXPECT_LT(ratio_out, ratio_in - 0.1) << "the spot must be brighter on the opening than around it";
+            EXPECT_GT(ratio_in, 0.8) << "the spot is aimed at the opening";
+        } else {
+            const int npx = c.photo_bgr.rows * c.photo_bgr.cols;
+            EXPECT_GT(changed, npx / 100) << "the prep barely shows";
+            EXPECT_EQ(changed_in_roi, 0) << "prep on the cortex";
+            // Browner: blue falls against red (skin about 0.65 of red, dried iodine about 0.2).
+            EXPECT_LT(blue_new / red_new, blue_old / red_old - 0.08) << "iodine takes blue more than red";
+            EXPECT_NEAR(ratio_in, 1.0, 0.01);
+        }
+    }
+    PhantomParams bad = p;
+    bad.lamp_spot_prob = 1.5;
+    EXPECT_THROW(bad.validate(), InputError);
+    bad = p;
+    bad.skin_prep_prob = -0.1;
+    EXPECT_THROW(bad.validate(), InputError);
+}
+
 TEST_F(Phantom, DslrCaseIsFullSizeJpeg) {
     PhantomParams p;
     p.seed = 3;
