@@ -194,6 +194,19 @@ TEST_F(Phantom, SurgicalFieldIsNotedAndLeavesThePoseAlone) {
     EXPECT_NEAR(t.z(), 350.9517425323447, 0.1);
 }
 
+// The case's notes give `key` (" name=") a value above 0, and its pose, landmarks, ROI and
+// targets are those of `plain` (what a stream of its own must leave alone).
+static void expect_noted_and_case_alone(const PhantomCase& c, const PhantomCase& plain, const std::string& key) {
+    const size_t at = c.notes.find(key);
+    ASSERT_NE(at, std::string::npos) << c.notes;
+    EXPECT_GT(std::stod(c.notes.substr(at + key.size())), 0.0) << c.notes;
+    EXPECT_TRUE(c.T_camera_from_world.isApprox(plain.T_camera_from_world, 0));
+    ASSERT_EQ(c.landmarks.size(), plain.landmarks.size());
+    for (size_t k = 0; k < c.landmarks.size(); ++k) EXPECT_EQ(c.landmarks[k].pixel, plain.landmarks[k].pixel);
+    EXPECT_EQ(c.roi_points, plain.roi_points);
+    EXPECT_EQ(c.targets_world_mm, plain.targets_world_mm);
+}
+
 // Subarachnoid blood and a film of blood are drawn from a stream of their own: turned on, they
 // change only cortex pixels, redden them (blood absorbs green and blue far more than red) and
 // leave the pose, landmarks, ROI and targets as they were.
@@ -210,14 +223,7 @@ TEST_F(Phantom, SulcalBloodAndABloodFilmRedderTheCortexAndLeaveTheCaseAlone) {
         (film ? q.blood_film_prob : q.sulcal_blood_prob) = 1.0;
         const PhantomCase c = generate_phantom_case(*surface_, q, 0);
         const std::string key = film ? " blood_film_mm=" : " sulcal_blood=";
-        const size_t at = c.notes.find(key);
-        ASSERT_NE(at, std::string::npos) << c.notes;
-        EXPECT_GT(std::stod(c.notes.substr(at + key.size())), 0.0) << c.notes;
-        EXPECT_TRUE(c.T_camera_from_world.isApprox(plain.T_camera_from_world, 0));
-        ASSERT_EQ(c.landmarks.size(), plain.landmarks.size());
-        for (size_t k = 0; k < c.landmarks.size(); ++k) EXPECT_EQ(c.landmarks[k].pixel, plain.landmarks[k].pixel);
-        EXPECT_EQ(c.roi_points, plain.roi_points);
-        EXPECT_EQ(c.targets_world_mm, plain.targets_world_mm);
+        expect_noted_and_case_alone(c, plain, key);
         // The pixels that changed: enough of them, all redder, none far outside the ROI.
         ASSERT_EQ(c.photo_bgr.size(), plain.photo_bgr.size());
         cv::Mat roi_mask = cv::Mat::zeros(c.photo_bgr.size(), CV_8U);
@@ -272,14 +278,7 @@ TEST_F(Phantom, TheLampsSpotAndTheSkinPrepChangeLightAndScalpAndLeaveTheCaseAlon
         (spot ? q.lamp_spot_prob : q.skin_prep_prob) = 1.0;
         const PhantomCase c = generate_phantom_case(*surface_, q, 0);
         const std::string key = spot ? " lamp_spot_mm=" : " skin_prep=";
-        const size_t at = c.notes.find(key);
-        ASSERT_NE(at, std::string::npos) << c.notes;
-        EXPECT_GT(std::stod(c.notes.substr(at + key.size())), 0.0) << c.notes;
-        EXPECT_TRUE(c.T_camera_from_world.isApprox(plain.T_camera_from_world, 0));
-        ASSERT_EQ(c.landmarks.size(), plain.landmarks.size());
-        for (size_t k = 0; k < c.landmarks.size(); ++k) EXPECT_EQ(c.landmarks[k].pixel, plain.landmarks[k].pixel);
-        EXPECT_EQ(c.roi_points, plain.roi_points);
-        EXPECT_EQ(c.targets_world_mm, plain.targets_world_mm);
+        expect_noted_and_case_alone(c, plain, key);
         ASSERT_EQ(c.photo_bgr.size(), plain.photo_bgr.size());
         // Mean brightness (sum of channels) inside the ROI and outside its neighbourhood.
         double in_new = 0, in_old = 0, out_new = 0, out_old = 0;
