@@ -47,8 +47,9 @@ struct PhantomParams {
     std::optional<double> sulcal_blood_prob, blood_film_prob;
     /// Probability that the photo is lit by the OR lamp's focused spot (bright on the opening,
     /// dimmer over the skin and drapes) rather than evenly (a flash), and that the scalp around
-    /// the opening is stained by iodine skin prep. Each from a random stream of its own: a seed's
-    /// poses, landmarks and ROI do not depend on them. 0..1.
+    /// the opening is stained by iodine skin prep. Both (and the clips' uneven placing) come from
+    /// a random stream of their own, every value drawn whatever the chances: a seed's poses,
+    /// landmarks and ROI do not depend on them, nor does one on the other. 0..1.
     double lamp_spot_prob = 0.8;
     double skin_prep_prob = 0.6;
     /// Probability of non-zero lens distortion (k1 in [-0.15, 0.08], small k2, p1, p2). 0..1.
