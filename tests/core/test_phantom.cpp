@@ -207,6 +207,15 @@ static void expect_noted_and_case_alone(const PhantomCase& c, const PhantomCase&
     EXPECT_EQ(c.targets_world_mm, plain.targets_world_mm);
 }
 
+// The case's ROI polygon filled (255) on a mask of the photo's size.
+static cv::Mat roi_mask_of(const PhantomCase& c) {
+    cv::Mat mask = cv::Mat::zeros(c.photo_bgr.size(), CV_8U);
+    std::vector<cv::Point> poly;
+    for (const auto& r : c.roi_points) poly.emplace_back(int(r.x()), int(r.y()));
+    cv::fillPoly(mask, std::vector<std::vector<cv::Point>>{poly}, cv::Scalar(255));
+    return mask;
+}
+
 // Subarachnoid blood and a film of blood are drawn from a stream of their own: turned on, they
 // change only cortex pixels, redden them (blood absorbs green and blue far more than red) and
 // leave the pose, landmarks, ROI and targets as they were.
@@ -223,13 +232,10 @@ TEST_F(Phantom, SulcalBloodAndABloodFilmRedderTheCortexAndLeaveTheCaseAlone) {
         (film ? q.blood_film_prob : q.sulcal_blood_prob) = 1.0;
         const PhantomCase c = generate_phantom_case(*surface_, q, 0);
         const std::string key = film ? " blood_film_mm=" : " sulcal_blood=";
-        expect_noted_and_case_alone(c, plain, key);
+        ASSERT_NO_FATAL_FAILURE(expect_noted_and_case_alone(c, plain, key));
         // The pixels that changed: enough of them, all redder, none far outside the ROI.
         ASSERT_EQ(c.photo_bgr.size(), plain.photo_bgr.size());
-        cv::Mat roi_mask = cv::Mat::zeros(c.photo_bgr.size(), CV_8U);
-        std::vector<cv::Point> poly;
-        for (const auto& r : c.roi_points) poly.emplace_back(int(r.x()), int(r.y()));
-        cv::fillPoly(roi_mask, std::vector<std::vector<cv::Point>>{poly}, cv::Scalar(255));
+        cv::Mat roi_mask = roi_mask_of(c);
         cv::dilate(roi_mask, roi_mask, cv::getStructuringElement(cv::MORPH_ELLIPSE, cv::Size(41, 41)));
         double d_red = 0, d_green = 0;
         int changed = 0, changed_outside = 0;
@@ -266,10 +272,7 @@ TEST_F(Phantom, TheLampsSpotAndTheSkinPrepChangeLightAndScalpAndLeaveTheCaseAlon
     p.fill_fraction = {0.5, 0.55};  // framed with the field around the opening in view
     const PhantomCase plain = generate_phantom_case(*surface_, p, 0);
     EXPECT_NE(plain.notes.find(" lamp_spot_mm=0 spot_floor=1.00 skin_prep=0.00"), std::string::npos) << plain.notes;
-    cv::Mat roi_mask = cv::Mat::zeros(plain.photo_bgr.size(), CV_8U);
-    std::vector<cv::Point> poly;
-    for (const auto& r : plain.roi_points) poly.emplace_back(int(r.x()), int(r.y()));
-    cv::fillPoly(roi_mask, std::vector<std::vector<cv::Point>>{poly}, cv::Scalar(255));
+    const cv::Mat roi_mask = roi_mask_of(plain);
     cv::Mat near_roi;
     cv::dilate(roi_mask, near_roi, cv::getStructuringElement(cv::MORPH_ELLIPSE, cv::Size(41, 41)));
     for (const bool spot : {true, false}) {
@@ -278,7 +281,7 @@ TEST_F(Phantom, TheLampsSpotAndTheSkinPrepChangeLightAndScalpAndLeaveTheCaseAlon
         (spot ? q.lamp_spot_prob : q.skin_prep_prob) = 1.0;
         const PhantomCase c = generate_phantom_case(*surface_, q, 0);
         const std::string key = spot ? " lamp_spot_mm=" : " skin_prep=";
-        expect_noted_and_case_alone(c, plain, key);
+        ASSERT_NO_FATAL_FAILURE(expect_noted_and_case_alone(c, plain, key));
         ASSERT_EQ(c.photo_bgr.size(), plain.photo_bgr.size());
         // Mean brightness (sum of channels) inside the ROI and outside its neighbourhood.
         double in_new = 0, in_old = 0, out_new = 0, out_old = 0;
