@@ -3,6 +3,8 @@
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
 
+#include <algorithm>
+#include <cmath>
 #include <iostream>
 #include <nlohmann/json.hpp>
 
@@ -57,26 +59,42 @@ void add_landscape(CLI::App& app) {
             st.render_width_px = o->width_px;
             const SimilaritySweep sw = reg.sweep(c.photo, T, st, o->range_mm, o->range_deg, o->steps);
             // 3 x 2 panels.
-            const int pw = 300, ph = 200, W = pw * 3, H = ph * 2 + 30;
+            const int pw = 300, ph = 216, pb = 46, W = pw * 3, H = ph * 2 + 30;  // pb: below the frame
             cv::Mat img(H, W, CV_8UC3, cv::Scalar(255, 255, 255));
             const char* names[6] = {"rx deg", "ry deg", "rz deg", "tx mm", "ty mm", "tz mm"};
-            nlohmann::json j = {{"about", o->about}, {"fwhm_mm", o->fwhm_mm}, {"width_px", o->width_px}};
+            const char* keys[6] = {"rx_deg", "ry_deg", "rz_deg", "tx_mm", "ty_mm", "tz_mm"};
+            nlohmann::json j = {{"about", o->about}, {"fwhm_mm", o->fwhm_mm}, {"width_px", o->width_px},
+                                {"metric", params.metric}};
             for (int p = 0; p < 6; ++p) {
                 const auto& xs = sw.offsets[size_t(p)];
                 const auto& ys = sw.similarity[size_t(p)];
                 const auto [mn, mx] = std::minmax_element(ys.begin(), ys.end());
                 const int ox = (p % 3) * pw, oy = 30 + (p / 3) * ph;
-                cv::rectangle(img, {ox + 30, oy + 10}, {ox + pw - 10, oy + ph - 30}, cv::Scalar(200, 200, 200));
+                cv::rectangle(img, {ox + 30, oy + 10}, {ox + pw - 10, oy + ph - pb}, cv::Scalar(200, 200, 200));
                 auto X = [&](size_t i) { return ox + 30 + int((pw - 40) * double(i) / double(xs.size() - 1)); };
-                auto Y = [&](double v) { return oy + ph - 30 - int((ph - 40) * (v - *mn) / std::max(*mx - *mn, 1e-9)); };
-                cv::line(img, {X(xs.size() / 2), oy + 10}, {X(xs.size() / 2), oy + ph - 30}, cv::Scalar(0, 0, 220), 1);
+                auto Y = [&](double v) { return oy + ph - pb - int((ph - pb - 10) * (v - *mn) / std::max(*mx - *mn, 1e-9)); };
+                // The sample nearest the pose itself (the middle one for an odd --steps).
+                size_t at = 0;
+                for (size_t i = 1; i < xs.size(); ++i)
+                    if (std::abs(xs[i]) < std::abs(xs[at])) at = i;
+                cv::line(img, {X(at), oy + 10}, {X(at), oy + ph - pb}, cv::Scalar(0, 0, 220), 1);
                 for (size_t i = 1; i < xs.size(); ++i) cv::line(img, {X(i - 1), Y(ys[i - 1])}, {X(i), Y(ys[i])}, cv::Scalar(120, 60, 0), 2);
                 const size_t best = size_t(std::max_element(ys.begin(), ys.end()) - ys.begin());
                 cv::circle(img, {X(best), Y(ys[best])}, 4, cv::Scalar(0, 150, 0), cv::FILLED);
                 char label[96];
                 std::snprintf(label, sizeof label, "%s  peak at %+.1f", names[p], xs[best]);
-                cv::putText(img, label, {ox + 35, oy + ph - 12}, cv::FONT_HERSHEY_SIMPLEX, 0.45, cv::Scalar(0, 0, 0));
+                cv::putText(img, label, {ox + 35, oy + ph - pb + 18}, cv::FONT_HERSHEY_SIMPLEX, 0.45, cv::Scalar(0, 0, 0));
+                // The curve's values, so that two cases' landscapes can be compared: each panel is
+                // scaled to its own range, and how far the peak stands above the ripple is what
+                // says how much the photo shows about that parameter.
+                char range[64];
+                std::snprintf(range, sizeof range, "%s %.4f .. %.4f", params.metric.c_str(), *mn, *mx);
+                cv::putText(img, range, {ox + 35, oy + ph - pb + 34}, cv::FONT_HERSHEY_SIMPLEX, 0.35, cv::Scalar(90, 90, 90));
                 j["peak_offsets"].push_back(xs[best]);
+                j["axes"][keys[p]] = {{"peak_offset", xs[best]},
+                                      {"similarity_peak", *mx},
+                                      {"similarity_at_pose", ys[at]},
+                                      {"similarity_min", *mn}};
             }
             cv::putText(img, params.metric + " about the " + o->about + " pose (red line); green: peak", {10, 20},
                         cv::FONT_HERSHEY_SIMPLEX, 0.5, cv::Scalar(0, 0, 0));

@@ -1,0 +1,85 @@
+// `cortexfuse landscape` as a researcher runs it to see where the similarity peaks about a
+// case's pose: the JSON carries each axis' values (so two cases can be compared, where each
+// panel of the picture is scaled to its own range), the picture is written, and a bad `--about`
+// is one line naming it, with no picture.
+#include <gtest/gtest.h>
+
+#include <algorithm>
+#include <cmath>
+#include <filesystem>
+#include <fstream>
+#include <nlohmann/json.hpp>
+
+#include "base_case.hpp"
+#include "cli_files.hpp"
+#include "process.hpp"
+
+namespace fs = std::filesystem;
+using nlohmann::json;
+using namespace cf;
+
+namespace {
+
+test::ProcessResult run_landscape(std::vector<std::string> args) {
+    std::vector<std::string> argv{test::cortexfuse_exe(), "landscape"};
+    argv.insert(argv.end(), args.begin(), args.end());
+    return test::run_process(argv, 300.0);
+}
+
+bool is_png(const fs::path& p) {
+    std::ifstream f(p, std::ios::binary);
+    char magic[8] = {};
+    f.read(magic, 8);
+    return f && std::string(magic + 1, 3) == "PNG";
+}
+
+}  // namespace
+
+TEST(LandscapeCli, EachAxisCarriesItsValuesAndThePoseLiesWithinThem) {
+    const fs::path c = test::base_cases() / "small";
+    const fs::path work = test::fresh_dir("landscape");
+    // An odd and an even count: with an even one no sample lies on the pose itself, and the
+    // nearest one stands for it.
+    for (const char* steps : {"9", "8"}) {
+        const fs::path png = work / (std::string("l") + steps + ".png");
+        const auto r = run_landscape({c.string(), "--out", png.string(), "--steps", steps, "--width-px", "96",
+                                      "--range-mm", "6", "--range-deg", "6"});
+        ASSERT_EQ(r.exit_code, 0) << r.err;
+        EXPECT_TRUE(is_png(png));
+        const json j = json::parse(r.out);
+        EXPECT_EQ(j.at("metric"), "nmi");
+        ASSERT_EQ(j.at("peak_offsets").size(), 6u);
+        const json& axes = j.at("axes");
+        ASSERT_EQ(axes.size(), 6u);
+        int i = 0;
+        double at_pose = 0;
+        for (const char* k : {"rx_deg", "ry_deg", "rz_deg", "tx_mm", "ty_mm", "tz_mm"}) {
+            const json& a = axes.at(k);
+            const double lo = a.at("similarity_min"), hi = a.at("similarity_peak"), at = a.at("similarity_at_pose");
+            EXPECT_LT(lo, hi) << k;  // the photo does vary with the pose
+            EXPECT_LE(lo, at) << k;
+            EXPECT_LE(at, hi) << k;
+            EXPECT_GT(lo, 0.99) << k;  // NMI lies in [1, 2]
+            EXPECT_LT(hi, 2.0) << k;
+            EXPECT_LE(std::abs(a.at("peak_offset").get<double>()), 6.0 + 1e-9) << k;
+            EXPECT_EQ(a.at("peak_offset"), j.at("peak_offsets").at(size_t(i++))) << k;
+            // On an odd count every axis' middle sample is the pose itself: the same value.
+            if (std::string(steps) == "9") {
+                if (i == 1) at_pose = at;
+                EXPECT_DOUBLE_EQ(at, at_pose) << k;
+            }
+        }
+    }
+    fs::remove_all(work);
+}
+
+TEST(LandscapeCli, ABadAboutIsOneLineNamingItAndNoPicture) {
+    const fs::path c = test::base_cases() / "small";
+    const fs::path work = test::fresh_dir("landscape_bad");
+    const auto r = run_landscape({c.string(), "--out", (work / "l.png").string(), "--about", "sideways"});
+    EXPECT_NE(r.exit_code, 0);
+    EXPECT_NE(r.err.find("--about sideways"), std::string::npos) << r.err;
+    EXPECT_EQ(std::count(r.err.begin(), r.err.end(), '\n'), 1) << r.err;
+    EXPECT_FALSE(fs::exists(work / "l.png"));
+    fs::remove_all(work);
+}
