@@ -9,6 +9,8 @@
 #include <filesystem>
 #include <fstream>
 #include <nlohmann/json.hpp>
+#include <string>
+#include <vector>
 
 #include "base_case.hpp"
 #include "cli_files.hpp"
@@ -63,6 +65,20 @@ TEST(LandscapeCli, EachAxisCarriesItsValuesAndThePoseLiesWithinThem) {
             EXPECT_LT(hi, 2.0) << k;
             EXPECT_LE(std::abs(a.at("peak_offset").get<double>()), 6.0 + 1e-9) << k;
             EXPECT_EQ(a.at("peak_offset"), j.at("peak_offsets").at(size_t(i++))) << k;
+            // The curve itself: --steps samples from -range to +range, the peak among them.
+            const auto xs = a.at("offsets").get<std::vector<double>>(), ys = a.at("similarity").get<std::vector<double>>();
+            ASSERT_EQ(xs.size(), size_t(std::stoi(steps))) << k;
+            ASSERT_EQ(ys.size(), xs.size()) << k;
+            EXPECT_NEAR(xs.front(), -6.0, 1e-9) << k;
+            EXPECT_NEAR(xs.back(), 6.0, 1e-9) << k;
+            EXPECT_EQ(*std::max_element(ys.begin(), ys.end()), hi) << k;
+            EXPECT_EQ(*std::min_element(ys.begin(), ys.end()), lo) << k;
+            // The peak's prominence: above the best sample more than 3 (mm or deg) from it.
+            const size_t best = size_t(std::max_element(ys.begin(), ys.end()) - ys.begin());
+            double rival = lo;
+            for (size_t s = 0; s < xs.size(); ++s)
+                if (std::abs(xs[s] - xs[best]) > 3) rival = std::max(rival, ys[s]);
+            EXPECT_NEAR(a.at("peak_prominence").get<double>(), (hi - rival) / (hi - lo), 1e-9) << k;
             // On an odd count every axis' middle sample is the pose itself: the same value.
             if (std::string(steps) == "9") {
                 if (i == 1) at_pose = at;
