@@ -12,6 +12,7 @@
 #include "commands.hpp"
 #include "cortexfuse/core/error.hpp"
 #include "cortexfuse/core/landmarks.hpp"
+#include "cortexfuse/core/case.hpp"
 #include "cortexfuse/core/registration.hpp"
 #include "cortexfuse/render/renderer_factory.hpp"
 
@@ -19,7 +20,7 @@ namespace cf::cli {
 
 namespace {
 struct LandscapeCmd {
-    std::string case_dir, out, params_file, about = "truth", renderer = "cpu";
+    std::string case_dir, out, params_file, about = "truth", renderer = "cpu", pose_file;
     double fwhm_mm = 4, range_mm = 10, range_deg = 10;
     int width_px = 190, steps = 41;
 };
@@ -31,6 +32,8 @@ void add_landscape(CLI::App& app) {
     sub->add_option("case_dir", o->case_dir, "Case folder")->required();
     sub->add_option("--out", o->out, "PNG to write")->required();
     sub->add_option("--about", o->about, "truth (needs truth.json) or landmarks")->capture_default_str();
+    sub->add_option("--pose", o->pose_file,
+                    "JSON with T_camera_from_world (a register result, say) to sweep about instead of --about");
     sub->add_option("--params", o->params_file, "Registration parameters (JSON)");
     sub->add_option("--fwhm-mm", o->fwhm_mm, "Blur FWHM at the cortex")->capture_default_str();
     sub->add_option("--width-px", o->width_px, "Working image width")->capture_default_str();
@@ -46,7 +49,10 @@ void add_landscape(CLI::App& app) {
             if (!o->params_file.empty()) params = registration_params_from_json(read_json_file(o->params_file), o->params_file);
             params.renderer_factory = renderer_factory(parse_renderer_kind(o->renderer));
             Pose T;
-            if (o->about == "truth") {
+            if (!o->pose_file.empty()) {
+                T = parse_pose(read_json_file(o->pose_file), o->pose_file);
+                o->about = "pose";
+            } else if (o->about == "truth") {
                 if (!c.spec.truth) throw InputError(o->case_dir + "/truth.json", "missing (use --about landmarks)");
                 T = c.spec.truth->T_camera_from_world;
             } else if (o->about == "landmarks") {
@@ -108,7 +114,7 @@ void add_landscape(CLI::App& app) {
                                       {"offsets", xs},
                                       {"similarity", ys}};
             }
-            cv::putText(img, params.metric + " about the " + o->about + " pose (red line); green: peak", {10, 20},
+            cv::putText(img, params.metric + " about " + (o->pose_file.empty() ? "the " + o->about + " pose" : o->pose_file) + " (red line); green: peak", {10, 20},
                         cv::FONT_HERSHEY_SIMPLEX, 0.5, cv::Scalar(0, 0, 0));
             if (!cv::imwrite(o->out, img)) throw InputError(o->out, "cannot write PNG");
             std::cout << j.dump() << "\n";

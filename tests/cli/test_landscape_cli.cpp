@@ -1,7 +1,8 @@
 // `cortexfuse landscape` as a researcher runs it to see where the similarity peaks about a
 // case's pose: the JSON carries each axis' values (so two cases can be compared, where each
-// panel of the picture is scaled to its own range), the picture is written, and a bad `--about`
-// is one line naming it, with no picture.
+// panel of the picture is scaled to its own range), the picture is written, a pose file (a
+// register result) is swept about as the truth is, and a bad `--about` or pose file is one line
+// naming it, with no picture.
 #include <gtest/gtest.h>
 
 #include <algorithm>
@@ -97,5 +98,33 @@ TEST(LandscapeCli, ABadAboutIsOneLineNamingItAndNoPicture) {
     EXPECT_NE(r.err.find("--about sideways"), std::string::npos) << r.err;
     EXPECT_EQ(std::count(r.err.begin(), r.err.end(), '\n'), 1) << r.err;
     EXPECT_FALSE(fs::exists(work / "l.png"));
+    fs::remove_all(work);
+}
+
+TEST(LandscapeCli, APoseFileIsSweptAboutAsTheTruthIsAndABadOneIsNamed) {
+    const fs::path c = test::base_cases() / "small";
+    const fs::path work = test::fresh_dir("landscape_pose");
+    const std::vector<std::string> fast{"--steps", "5", "--width-px", "96"};
+    auto args = [&](std::vector<std::string> a) {
+        a.insert(a.end(), fast.begin(), fast.end());
+        return a;
+    };
+    const auto by_truth = run_landscape(args({c.string(), "--out", (work / "t.png").string()}));
+    ASSERT_EQ(by_truth.exit_code, 0) << by_truth.err;
+    // truth.json holds T_camera_from_world, as a register result does.
+    const auto by_file = run_landscape(args({c.string(), "--out", (work / "p.png").string(), "--pose", (c / "truth.json").string()}));
+    ASSERT_EQ(by_file.exit_code, 0) << by_file.err;
+    const json a = json::parse(by_truth.out), b = json::parse(by_file.out);
+    EXPECT_EQ(b.at("about"), "pose");
+    EXPECT_EQ(a.at("axes"), b.at("axes"));
+    // Not rigid: refused, named, no picture.
+    json bad = test::read_json(c / "truth.json");
+    bad["T_camera_from_world"][0][0] = 2.0;
+    test::write_json(work / "scaled.json", bad);
+    const auto r = run_landscape(args({c.string(), "--out", (work / "s.png").string(), "--pose", (work / "scaled.json").string()}));
+    EXPECT_NE(r.exit_code, 0);
+    EXPECT_NE(r.err.find("scaled.json"), std::string::npos) << r.err;
+    EXPECT_EQ(std::count(r.err.begin(), r.err.end(), '\n'), 1) << r.err;
+    EXPECT_FALSE(fs::exists(work / "s.png"));
     fs::remove_all(work);
 }
