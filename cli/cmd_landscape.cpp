@@ -51,7 +51,6 @@ void add_landscape(CLI::App& app) {
             Pose T;
             if (!o->pose_file.empty()) {
                 T = parse_pose(read_json_file(o->pose_file), o->pose_file);
-                o->about = "pose";
             } else if (o->about == "truth") {
                 if (!c.spec.truth) throw InputError(o->case_dir + "/truth.json", "missing (use --about landmarks)");
                 T = c.spec.truth->T_camera_from_world;
@@ -70,7 +69,7 @@ void add_landscape(CLI::App& app) {
             cv::Mat img(H, W, CV_8UC3, cv::Scalar(255, 255, 255));
             const char* names[6] = {"rx deg", "ry deg", "rz deg", "tx mm", "ty mm", "tz mm"};
             const char* keys[6] = {"rx_deg", "ry_deg", "rz_deg", "tx_mm", "ty_mm", "tz_mm"};
-            nlohmann::json j = {{"about", o->about}, {"fwhm_mm", o->fwhm_mm}, {"width_px", o->width_px},
+            nlohmann::json j = {{"about", o->pose_file.empty() ? o->about : "pose"}, {"fwhm_mm", o->fwhm_mm}, {"width_px", o->width_px},
                                 {"metric", params.metric}};
             for (int p = 0; p < 6; ++p) {
                 const auto& xs = sw.offsets[size_t(p)];
