@@ -6,6 +6,7 @@
 #include <opencv2/imgproc.hpp>
 
 #include <algorithm>
+#include <cmath>
 #include <iostream>
 #include <map>
 #include <nlohmann/json.hpp>
@@ -270,6 +271,8 @@ void add_evaluate(CLI::App& app) {
                                                         {"offset_camera_mm", {e_lm.offset_camera_mm.x(), e_lm.offset_camera_mm.y(), e_lm.offset_camera_mm.z()}}}},
                                     {"surface_offset_mm", {{"median", offset.median_mm}, {"mean", offset.mean_mm}, {"mad", offset.mad_mm}, {"pixels", offset.pixels}}},
                                     {"seconds", r.seconds}, {"evaluations", r.evaluations}, {"similarity", r.similarity}, {"stages", stages},
+                                    {"peak_prominence", std::isnan(r.peak_prominence) ? json(nullptr) : json(r.peak_prominence)},
+                                    {"landmarks_weighed_up", r.landmarks_weighed_up},
                                     {"truth_score", {{"similarity", s_truth.similarity}, {"cost", s_truth.cost}}},
                                     {"final_score", {{"similarity", s_final.similarity}, {"cost", s_final.cost}}}});
                     ++done;

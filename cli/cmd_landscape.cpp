@@ -6,7 +6,6 @@
 #include <algorithm>
 #include <cmath>
 #include <iostream>
-#include <limits>
 #include <nlohmann/json.hpp>
 
 #include "commands.hpp"
@@ -96,15 +95,10 @@ void add_landscape(CLI::App& app) {
                 char range[64];
                 std::snprintf(range, sizeof range, "%s %.4f .. %.4f", params.metric.c_str(), *mn, *mx);
                 cv::putText(img, range, {ox + 35, oy + ph - pb + 34}, cv::FONT_HERSHEY_SIMPLEX, 0.35, cv::Scalar(90, 90, 90));
-                // How far the peak stands above the best the curve reaches elsewhere (beyond
-                // kApartFromPeak of it), as a fraction of the curve's range: near 1 one clear peak,
-                // near 0 a rival as high (twenty-first session: tx and ty averaged, about the
-                // truth, 0.08-0.34 on every MNI152 case and 0.54-0.93 on the informative heads).
-                constexpr double kApartFromPeak = 3;  // mm or deg
-                double rival = -std::numeric_limits<double>::infinity();
-                for (size_t i = 0; i < xs.size(); ++i)
-                    if (std::abs(xs[i] - xs[best]) > kApartFromPeak) rival = std::max(rival, ys[i]);
-                const double prominence = std::isfinite(rival) ? (*mx - rival) / std::max(*mx - *mn, 1e-12) : 1.0;
+                // How far the peak stands above the ripple (twenty-first session: tx and ty
+                // averaged, about the truth, 0.08-0.34 on every MNI152 case and 0.54-0.93 on the
+                // informative heads); the engine's prominence gate takes the same measure.
+                const double prominence = peak_prominence(xs, ys);
                 j["peak_offsets"].push_back(xs[best]);
                 j["axes"][keys[p]] = {{"peak_offset", xs[best]},
                                       {"similarity_peak", *mx},

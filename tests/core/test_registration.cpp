@@ -826,3 +826,102 @@ TEST(PhotoChannel, TissueMedianMadHoldsWithHalfTheValuesElsewhereAndMatchesThePl
     EXPECT_FLOAT_EQ(m3, 0.4f);
     EXPECT_FLOAT_EQ(s3, 0.2f);
 }
+
+// peak_prominence(): the measure the prominence gate and `cortexfuse landscape` share.
+TEST(PeakProminence, OneClearPeakARivalRidgeAFlatCurveAndNoSampleApart) {
+    std::vector<double> xs;
+    for (int i = 0; i <= 40; ++i) xs.push_back(-10 + 0.5 * i);
+    auto curve = [&](auto f) {
+        std::vector<double> ys;
+        for (double x : xs) ys.push_back(f(x));
+        return ys;
+    };
+    // One peak: the best sample beyond 3 mm is at 3.5 mm, exp(-3.5^2 / 2) of the way up.
+    const double one = peak_prominence(xs, curve([](double x) { return std::exp(-x * x / 2); }));
+    EXPECT_NEAR(one, 1 - std::exp(-3.5 * 3.5 / 2), 1e-3);
+    // A second ridge 0.9 as high, 8 mm away: the peak stands a tenth of the range above it.
+    const double ridge = peak_prominence(
+        xs, curve([](double x) { return std::exp(-(x - 2) * (x - 2) / 2) + 0.9 * std::exp(-(x + 6) * (x + 6) / 2); }));
+    EXPECT_NEAR(ridge, 0.1, 0.01);
+    EXPECT_EQ(peak_prominence(xs, std::vector<double>(xs.size(), 0.7)), 0.0);
+    // Apart is measured from the peak, not from the middle: the peak at the end, its rival at
+    // the other end, the range the peak's.
+    EXPECT_NEAR(peak_prominence({-1, 0, 1}, {0.2, 0.1, 0.5}, 1.5), 0.75, 1e-12);
+    EXPECT_EQ(peak_prominence({-1, 0, 1}, {0.2, 0.1, 0.5}, 3), 1.0);  // nothing that far
+    EXPECT_THROW(peak_prominence({0, 1}, {0.5}), std::invalid_argument);
+    EXPECT_THROW(peak_prominence({}, {}), std::invalid_argument);
+}
+
+// The prominence gate: two sweeps of the first final stage across the winner, recorded as a
+// stage; open, the result is the run's without the gate to the bit (the sweep leaves the light
+// and everything else as it found it); closed, the last round runs again with the landmarks
+// weighed up, which brings the pose to the landmarks, and the result says so.
+TEST(Registration, TheProminenceGateWeighsTheLandmarksUpWhereThePhotoPinsThePoseWeakly) {
+    const Fixture& f = fixture();
+    RegistrationParams p = small_params();
+    p.starts.resize(1);
+    p.prominence_sweep_steps = 21;
+    for (auto& st : p.refine_stages) st.max_evaluations = 60;  // room for the gate to walk back to the landmarks
+    ASSERT_TRUE(p.estimate_light && p.light_rounds == 2 && !p.refine_stages.empty()) << "the test needs a lit refine round";
+    const RegistrationResult off = Registration(f.c.volume, f.c.mask, p).run(f.c.photo);
+    EXPECT_TRUE(std::isnan(off.peak_prominence));
+    EXPECT_TRUE(result_to_json(off)["peak_prominence"].is_null());
+
+    auto count = [](const RegistrationResult& r, const std::string& name) {
+        int n = 0;
+        for (const auto& s : r.stages) n += s.name == name;
+        return n;
+    };
+    // Open: the gate's threshold under any prominence the sweep can give.
+    p.prominence_gate = 1e-9;
+    const RegistrationResult open = Registration(f.c.volume, f.c.mask, p).run(f.c.photo);
+    ASSERT_EQ(count(open, "prominence"), 1);
+    EXPECT_EQ(open.stages.back().name, "prominence");
+    EXPECT_EQ(open.stages.back().evaluations, 2 * 21);
+    EXPECT_EQ(open.evaluations, off.evaluations + 2 * 21);
+    EXPECT_GT(open.peak_prominence, 0.0);
+    EXPECT_LT(open.peak_prominence, 1.0);
+    EXPECT_FALSE(open.landmarks_weighed_up);
+    EXPECT_EQ(open.warnings, off.warnings);
+    EXPECT_EQ((open.T_camera_from_world - off.T_camera_from_world).norm(), 0.0);
+    EXPECT_EQ(open.similarity, off.similarity);
+    EXPECT_EQ(open.light_direction_camera, off.light_direction_camera);
+
+    // Closed, with the prior at 10: the last round's stages again after the sweep, ending where
+    // the landmarks reproject within the prior's 1 px tolerance (at 375 px) of their own fit.
+    p.prominence_gate = 1.0;
+    p.prominence_gate_prior_weight = 10;
+    Progress progress;
+    std::vector<double> fractions;
+    progress.report = [&](const std::string&, double fr) { fractions.push_back(fr); };
+    const RegistrationResult closed = Registration(f.c.volume, f.c.mask, p).run(f.c.photo, &progress);
+    EXPECT_TRUE(closed.landmarks_weighed_up);
+    EXPECT_EQ(closed.peak_prominence, open.peak_prominence);
+    ASSERT_EQ(count(closed, "prominence"), 1);
+    size_t at = 0;
+    while (closed.stages[at].name != "prominence") ++at;
+    ASSERT_EQ(closed.stages.size(), at + 1 + p.refine_stages.size());
+    for (size_t i = 0; i < p.refine_stages.size(); ++i) EXPECT_EQ(closed.stages[at + 1 + i].name, p.refine_stages[i].name);
+    ASSERT_FALSE(closed.warnings.empty());
+    EXPECT_NE(closed.warnings.back().find("peak prominence"), std::string::npos) << closed.warnings.back();
+    const double fit_rms_px = fit_pose_pnp(f.c.photo.landmarks, f.c.photo.camera).rms_px;
+    const double tolerance_px = p.landmark_prior_tolerance_px * f.c.photo.camera.width / 375.0;
+    EXPECT_LE(closed.final_landmark_rms_px, fit_rms_px + 1.2 * tolerance_px) << fit_rms_px << " " << tolerance_px;
+    EXPECT_GT(open.final_landmark_rms_px, closed.final_landmark_rms_px + 0.5) << "the test needs the photo to pull off the landmarks";
+    EXPECT_TRUE(is_rigid(closed.T_camera_from_world));
+    // The bar never went back and was not full before the end.
+    for (size_t i = 1; i < fractions.size(); ++i) EXPECT_GE(fractions[i], fractions[i - 1]) << "report " << i;
+    for (size_t i = 0; i + 1 < fractions.size(); ++i) EXPECT_LT(fractions[i], 1.0) << "report " << i;
+    const nlohmann::json j = result_to_json(closed);
+    EXPECT_EQ(j["landmarks_weighed_up"], true);
+    EXPECT_EQ(j["peak_prominence"], closed.peak_prominence);
+    EXPECT_EQ(j["parameters"]["prominence_gate"], 1.0);
+    EXPECT_EQ(to_json(registration_params_from_json(j["parameters"], "params")), j["parameters"]);
+    for (const auto& [key, value] : std::vector<std::pair<std::string, double>>{
+             {"prominence_gate", 1.5}, {"prominence_gate", -0.1}, {"prominence_gate_prior_weight", -1},
+             {"prominence_sweep_mm", 3}, {"prominence_sweep_steps", 4}}) {
+        nlohmann::json bad = j["parameters"];
+        bad[key] = value;
+        EXPECT_THROW(registration_params_from_json(bad, "params"), InputError) << key << " " << value;
+    }
+}

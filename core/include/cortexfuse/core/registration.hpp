@@ -164,6 +164,17 @@ struct RegistrationParams {
     /// that is further from the truth. 0: the screen alone decides.
     int search_keep_fits = 0;
     int keep_best = 1;  // candidates carried into the final stages
+    /// The prominence gate: after the last round the similarity is swept across the winner in
+    /// tx and ty (prominence_sweep_mm either side, prominence_sweep_steps samples, at the first
+    /// final stage's size and blur, with a headlight), and each curve's peak_prominence() is
+    /// taken. When their mean is under this, the photo does not pin the pose (a rival ridge
+    /// nearly as high: a template with no sulci, thick slices), so the last round's stages run
+    /// again from the winner with the landmark prior at prominence_gate_prior_weight, and the
+    /// result says so in `warnings`. 0: off (no sweep). Needs >= 4 landmarks and a prior.
+    double prominence_gate = 0;
+    double prominence_gate_prior_weight = 0.03;
+    double prominence_sweep_mm = 10;
+    int prominence_sweep_steps = 41;
     std::vector<StageParams> final_stages;
     /// Stages of the later light rounds (the winner only, after the light is re-estimated at
     /// its refined pose); empty: `final_stages` again.
@@ -224,6 +235,11 @@ struct RegistrationResult {
     /// The light direction the final stages rendered with (camera frame, towards the light);
     /// (0, 0, -1) with a headlight.
     Eigen::Vector3d light_direction_camera{0, 0, -1};
+    /// The prominence gate (RegistrationParams::prominence_gate): the mean peak prominence of tx
+    /// and ty about the winner (NaN when the gate did not run), and whether it fell under the
+    /// gate so that the landmarks were weighed up for the last round.
+    double peak_prominence = std::numeric_limits<double>::quiet_NaN();
+    bool landmarks_weighed_up = false;
 };
 
 nlohmann::json result_to_json(const RegistrationResult& r);
@@ -243,6 +259,13 @@ struct SimilaritySweep {
     std::array<std::vector<double>, 6> offsets, similarity;
     Eigen::Vector3d pivot_world_mm = Eigen::Vector3d::Zero();
 };
+
+/// How far a similarity curve's peak stands above the best it reaches more than `apart_from_peak`
+/// (mm or deg, in `offsets`' unit) from it, as a fraction of the curve's range: near 1, one clear
+/// peak; near 0, a rival as high. 1 when no sample lies that far from the peak, 0 on a flat
+/// curve. Throws std::invalid_argument when the two lists differ in length or are empty.
+double peak_prominence(const std::vector<double>& offsets, const std::vector<double>& similarity,
+                       double apart_from_peak = 3);
 
 /// A registration engine for one volume: prepares the renderer once, then runs any number of
 /// registrations (the evaluation reuses it). Thread contract: one run() at a time.
