@@ -636,7 +636,10 @@ PhantomCase generate_phantom_case(const PhantomSurface& S, const PhantomParams& 
         // landmarks and ROI stay as they were before these were added.
         Rng rbd(splitmix64(P.seed * 0x9FB21C651E98DF25ull + splitmix64(uint64_t(index) + 0xB100Dull)));
         const double rc = 0.5 * (cr.R1 + cr.R2);
-        auto inside = [&] {
+        // `-> Vec2`: a deduced return type was Eigen's product expression, which referred to the
+        // Vec2 temporary after it died; the patches' centres were whatever the stack then held
+        // (1e7 mm off on one VM, 0 on another), so the blood was drawn off the cortex or at its middle.
+        auto inside = [&]() -> Vec2 {
             const double th = rbd.uni(0, 2 * kPi), rr = 0.7 * std::sqrt(rbd.uni());
             return Vec2(std::cos(th), std::sin(th)) * rr * cr.r_bone(th);
         };
