@@ -908,9 +908,10 @@ TEST(Registration, TheProminenceGateWeighsTheLandmarksUpWhereThePhotoPinsThePose
     const double tolerance_px = p.landmark_prior_tolerance_px * f.c.photo.camera.width / 375.0;
     const double near_landmarks_px = fit_rms_px + 1.2 * tolerance_px;
     EXPECT_LE(closed.final_landmark_rms_px, near_landmarks_px) << fit_rms_px << " " << tolerance_px;
-    // Open, the photo held the pose further off than that (release 15.3 px, ASan build 14.7 px,
-    // against 13.2): without the weighed-up prior the bound above would fail.
-    EXPECT_GT(open.final_landmark_rms_px, near_landmarks_px) << "the test needs the photo to pull off the landmarks";
+    // And nearer the landmarks than the open run (the photo pulls it off them: release 15.3 px
+    // against 13.2 for the bound; a gate that does not weigh the prior up ends at 13.9).
+    EXPECT_LT(closed.final_landmark_rms_px, open.final_landmark_rms_px - 0.2)
+        << "open " << open.final_landmark_rms_px << ", bound " << near_landmarks_px;
     EXPECT_TRUE(is_rigid(closed.T_camera_from_world));
     // The bar never went back and was not full before the end.
     for (size_t i = 1; i < fractions.size(); ++i) EXPECT_GE(fractions[i], fractions[i - 1]) << "report " << i;
