@@ -245,10 +245,18 @@ void RegistrationParams::validate(const std::string& ctx) const {
             if (!std::isfinite(v) || std::abs(v) > 90) bad("start offsets must be finite and within +-90");
 }
 
+namespace {
+// The stages of the last round: the refine stages when a later light round runs them, else the
+// final stages (what last_stage() ends with, and what the prominence gate runs again).
+const std::vector<StageParams>& last_round_stages(const RegistrationParams& p) {
+    const bool refined = p.estimate_light && p.light_rounds > 1 && !p.refine_stages.empty();
+    return refined ? p.refine_stages : p.final_stages;
+}
+}  // namespace
+
 const StageParams& RegistrationParams::last_stage() const {
     if (final_stages.empty()) return search_stages.back();
-    const bool refined = estimate_light && light_rounds > 1 && !refine_stages.empty();
-    return refined ? refine_stages.back() : final_stages.back();
+    return last_round_stages(*this).back();
 }
 
 namespace {
@@ -1066,8 +1074,7 @@ RegistrationResult Registration::run(const PhotoInput& in, const Progress* progr
     // The prominence gate: its two sweeps always, the last round again when it closes (counted
     // always, so that the bar never goes back; it jumps to the end when the gate stays open).
     const bool gate = params_.prominence_gate > 0 && prior.active() && !params_.final_stages.empty();
-    const bool refined = params_.estimate_light && params_.light_rounds > 1 && !params_.refine_stages.empty();
-    const std::vector<StageParams>& last_round = refined ? params_.refine_stages : params_.final_stages;
+    const std::vector<StageParams>& last_round = last_round_stages(params_);
     if (gate) {
         total_budget += 2 * params_.prominence_sweep_steps;
         for (const auto& s : last_round) total_budget += s.max_evaluations;
