@@ -417,6 +417,16 @@ struct Look {
     double drape_weave_px = 3.0;
     int drape_kind = 0;
     uint32_t nseed = 1;
+    // The photographic finish, drawn by add_finish() from a stream of the look's own seed, so
+    // that adding it moved no other draw: the drapes' soft folds (wavelength, steepest slope,
+    // direction), the lamp's reflection in a pool of blood (half the lamp's angular radius, as
+    // the half-vector sees it), the lens' halation around glare and its lateral colour (red
+    // scaled up and blue down about the centre by this fraction), a shaved scalp's stubble.
+    bool finish = true;  // false: the appearance before the finish (PhantomParams::photo_finish)
+    double fold_mm = 40, fold_slope = 0.6, fold_psi = 0;
+    double lamp_half_deg = 4;
+    double bloom = 0.3, chroma = 0.0005;
+    bool stubble = true;
 };
 
 Look random_look(Rng& r) {
@@ -461,6 +471,18 @@ Look random_look(Rng& r) {
     L.drape_weave_px = r.uni(2.0, 4.5);
     L.nseed = r.u32();
     return L;
+}
+
+void add_finish(Look& L, bool on) {
+    Rng r(splitmix64(uint64_t(L.nseed) * 0x94D049BB133111EBull + 0xF1215Bull));
+    L.finish = on;
+    L.fold_mm = r.uni(5, 15);
+    L.fold_slope = on ? r.uni(0.4, 1.0) : (r.uni(), 0.0);
+    L.fold_psi = r.uni(0, kPi);
+    L.lamp_half_deg = r.uni(1.0, 3.0);
+    L.bloom = on ? r.uni(0.1, 0.5) : (r.uni(), 0.0);
+    L.chroma = on ? r.uni(0, 0.0012) : (r.uni(), 0.0);
+    L.stubble = r.chance(0.7) && on;
 }
 
 enum Layer : uint8_t { kDrape = 0, kSkin, kSkinCut, kBone, kDura, kBoneWall, kCortex, kDark, kBurr, kClip, kDuraFlap };
@@ -697,6 +719,7 @@ PhantomCase generate_phantom_case(const PhantomSurface& S, const PhantomParams& 
     const Intrinsics Kr = K.resized(rw, rh);
 
     Look L = random_look(rng);
+    add_finish(L, P.photo_finish);
     out.jpeg = dslr || !rng.chance(P.png_fraction);
     out.jpeg_quality = dslr ? rng.integer(85, 96) : L.jpeg_quality;
     const bool apply_jpeg_artefacts = out.jpeg || rng.chance(0.5);
@@ -826,6 +849,28 @@ PhantomCase generate_phantom_case(const PhantomSurface& S, const PhantomParams& 
     const float ref_dist2 = float((light_w - cr.c).squaredNorm());
     const uint32_t ns = L.nseed;
     const double px_per_mm = Kr.fx / dist;
+    // The drapes' soft folds: a ripple across fold_psi whose phase wanders and whose height comes
+    // and goes (cloth lies flat in places), in render px. Lit by the lamp, each fold shows a lit
+    // and a shaded flank; a brightness pattern alone reads as print on the cloth, not as cloth.
+    // A second family, longer and across the first, breaks the ripple's regularity.
+    auto fold_family = [&](float x, float y, float lam, float psi, uint32_t seed, float* crest) {
+        const float cs = std::cos(psi), sn = std::sin(psi);
+        const float a = (cs * x + sn * y) / lam, b = (-sn * x + cs * y) / lam;
+        const float warp = 1.5f * fbm(a * 0.5f, b * 0.25f, seed, 2);
+        const float gate = smoothstep(0.2f, 0.55f, fbm(a * 0.25f, b * 0.25f, seed + 1, 2));
+        // Rounded crests, creased troughs: 1 - 2|sin| over half the wavelength.
+        const float fs = 1.f - 2.f * std::abs(std::sin(float(kPi) * (a + warp)));
+        if (crest) *crest = gate * fs;  // -1 in a full fold's trough, +1 on its crest
+        return float(L.fold_slope) * gate * lam / (2 * float(kPi)) * fs;
+    };
+    const float fold_lam = float(L.fold_mm * px_per_mm), fold_psi = float(L.fold_psi);
+    auto fold_height_px = [&](float x, float y, float* crest) {
+        float c1 = 0, c2 = 0;
+        const float h = fold_family(x, y, fold_lam, fold_psi, ns + 40, crest ? &c1 : nullptr) +
+                        fold_family(x, y, 1.7f * fold_lam, fold_psi + 1.2f, ns + 45, crest ? &c2 : nullptr);
+        if (crest) *crest = std::clamp(c1 + c2, -1.f, 1.f);
+        return h;
+    };
 
     tbb::parallel_for(0, rh, [&](int v) {
         for (int u = 0; u < rw; ++u) {
@@ -941,6 +986,9 @@ PhantomCase generate_phantom_case(const PhantomSurface& S, const PhantomParams& 
                     const Vec3 nrm = (qb - cr.O).normalized();
                     const float t = fbm(float(ab_b.x() / 2), float(ab_b.y() / 2), ns + 5, 4);
                     Col alb = lay == kBone ? L.bone * (0.8f + 0.35f * t) : L.dura * (0.85f + 0.25f * t);
+                    // The outer table's vascular pits, each a dark red point.
+                    if (lay == kBone && L.finish)
+                        alb = mix(alb, L.blood * 1.4f, 0.5f * smoothstep(0.82f, 0.95f, vnoise(float(ab_b.x() / 0.5), float(ab_b.y() / 0.5), ns + 44)));
                     // Blood stains on bone near the edge.
                     const float st = fbm(float(ab_b.x() / 5), float(ab_b.y() / 5), ns + 6, 3);
                     alb = mix(alb, L.blood * 1.6f, 0.8f * smoothstep(0.55f, 0.75f, st));
@@ -1011,6 +1059,9 @@ PhantomCase generate_phantom_case(const PhantomSurface& S, const PhantomParams& 
                     const float t = fbm(float(ab_s.x() / 3), float(ab_s.y() / 3), ns + 8, 4);
                     const double edge = hs ? rho_s - cr.r_skin(th_s) : 0;
                     Col alb = L.skin * (0.85f + 0.3f * t);
+                    // Pores, and on a shaved scalp the stubble's dark points (about 1 mm apart).
+                    if (L.finish) alb *= 1.f - 0.12f * smoothstep(0.7f, 0.9f, vnoise(float(ab_s.x() / 0.3), float(ab_s.y() / 0.3), ns + 42));
+                    if (L.stubble) alb *= 1.f - 0.3f * smoothstep(0.86f, 0.96f, vnoise(float(ab_s.x() / 0.45), float(ab_s.y() / 0.45), ns + 43));
                     if (cr.prep > 0) {
                         // Iodine prep dries unevenly: blotches, streaks along the sponge's strokes.
                         const float blot = fbm(float(ab_s.x() / 14), float(ab_s.y() / 14), ns + 31, 3);
@@ -1079,8 +1130,25 @@ PhantomCase generate_phantom_case(const PhantomSurface& S, const PhantomParams& 
                     const float weave = 0.5f + 0.5f * std::sin(su * 2 * float(kPi) / float(L.drape_weave_px)) *
                                                     std::sin(sv * 2 * float(kPi) / float(L.drape_weave_px));
                     const float fine = vnoise(su * 0.7f, sv * 0.7f, ns + 10);
-                    c = L.drape * (0.45f + 0.9f * fold) * (0.88f + 0.12f * weave) * (0.94f + 0.12f * fine) * float(L.exposure) *
-                        (tone * hem * shadow * (1.f - 0.25f * crease));
+                    if (!L.finish) {
+                        c = L.drape * (0.45f + 0.9f * fold) * (0.88f + 0.12f * weave) * (0.94f + 0.12f * fine) * float(L.exposure) *
+                            (tone * hem * shadow * (1.f - 0.25f * crease));
+                        break;
+                    }
+                    // The folds' relief, lit: Lambert against the lamp, relative to the cloth
+                    // lying flat, and the troughs a little occluded.
+                    float crest = 0;
+                    const float fu = float(u), fv = float(v);
+                    fold_height_px(fu, fv, &crest);
+                    const float hx = 0.5f * (fold_height_px(fu + 1, fv, nullptr) - fold_height_px(fu - 1, fv, nullptr));
+                    const float hy = 0.5f * (fold_height_px(fu, fv + 1, nullptr) - fold_height_px(fu, fv - 1, nullptr));
+                    const Eigen::Vector3f nrm_c = Eigen::Vector3f(-hx, -hy, -1.f).normalized();  // camera frame, towards the camera
+                    const Eigen::Vector3f p_cam = rays[i] * depth_cam[i];
+                    const Eigen::Vector3f l_cam = (L.light_offset_camera_mm.cast<float>() - p_cam).normalized();
+                    const float flat = std::max(0.2f, -l_cam.z());
+                    const float relief = (0.3f + 0.7f * std::max(0.f, nrm_c.dot(l_cam)) / flat) * (1.f - 0.2f * (1.f - crest));
+                    c = L.drape * (0.65f + 0.5f * fold) * relief * (0.88f + 0.12f * weave) * (0.94f + 0.12f * fine) *
+                        float(L.exposure) * (tone * hem * shadow * (1.f - 0.25f * crease));
                     break;
                 }
             }
@@ -1180,27 +1248,49 @@ PhantomCase generate_phantom_case(const PhantomSurface& S, const PhantomParams& 
             // Depth at the centre, mm: a shallow smear to a deep pool.
             const double deep_mm = 0.3 + 2.5 * (1 - thin);
             const float ppm = float(px_per_mm);
+            // The pool's edge (m = 1) is ragged; its depth rises from nothing there (a meniscus)
+            // as sqrt(1 - m), and clots and ripples roughen its surface a little.
+            auto pool_m = [&](int uu, int vv) {
+                return (Vec2(uu, vv) - bc).norm() / rpx + 0.7 * (fbm(float(uu / rpx * 1.5), float(vv / rpx * 1.5), bs, 3) - 0.5);
+            };
+            auto pool_h_mm = [&](int uu, int vv) {
+                const double m = pool_m(uu, vv);
+                return deep_mm * std::sqrt(std::max(0.0, 1 - m)) +
+                       0.015 * std::min(1.0, 4 * std::max(0.0, 1 - m)) * fbm(float(uu / (1.2 * ppm)), float(vv / (1.2 * ppm)), bs + 4, 2);
+            };
+            const double cos_lamp = std::cos(L.lamp_half_deg * kPi / 180), cos_soft = std::cos(2.0 * L.lamp_half_deg * kPi / 180);
             for (int v = y0; v <= y1; ++v)
                 for (int u = x0; u <= x1; ++u) {
                     const size_t i = size_t(v) * rw + u;
-                    const double r = (Vec2(u, v) - bc).norm() / rpx;
-                    const float nz = fbm(float(u / rpx * 1.5), float(v / rpx * 1.5), bs, 3);
-                    const double m = r + 0.7 * (nz - 0.5);
+                    const double m = pool_m(u, v);
                     if (m < 1.0 && layer[i] != kDrape) {
-                        // A glossy pool: its depth rises from nothing at the edge (a meniscus),
-                        // so the rim is a red stain over the tissue and the middle the blood's
-                        // own colour, darker where it clots.
+                        // The rim is a red stain over the tissue and the middle the blood's own
+                        // colour, darker where it clots.
                         const double h = deep_mm * std::sqrt(std::max(0.0, 1 - m));
                         const float clot = fbm(float(u / (1.2f * ppm)), float(v / (1.2f * ppm)), bs + 2, 3);
                         const Col body = L.blood * (0.55f + 0.7f * clot) * float(L.ambient + L.diffuse);
                         Col col = through_blood(img[i], body, h);
-                        // Its smooth surface mirrors the lamp: flecks, and a glint along the
-                        // meniscus where the surface curves.
-                        const float fleck = fbm(float(u / (2.5 * ppm)), float(v / (2.5 * ppm)), bs + 1, 2);
-                        col += L.light * float(1.2 * smoothstep(0.84f, 0.9f, fleck) * L.spec * 0.6 * (1 - smoothstep(0.85f, 1.f, float(m))));
-                        const float men = smoothstep(0.84f, 0.88f, float(m)) * (1 - smoothstep(0.9f, 0.94f, float(m)));
-                        const float glint = smoothstep(0.62f, 0.8f, fbm(float(u / (1.5 * ppm)), float(v / (1.5 * ppm)), bs + 3, 2));
-                        col += L.light * float(0.2 * L.spec * men * glint);
+                        if (!L.finish) {
+                            // Before the finish: flecks of glare, and a glint along the meniscus.
+                            const float fleck = fbm(float(u / (2.5 * ppm)), float(v / (2.5 * ppm)), bs + 1, 2);
+                            col += L.light * float(1.2 * smoothstep(0.84f, 0.9f, fleck) * L.spec * 0.6 * (1 - smoothstep(0.85f, 1.f, float(m))));
+                            const float men = smoothstep(0.84f, 0.88f, float(m)) * (1 - smoothstep(0.9f, 0.94f, float(m)));
+                            const float glint = smoothstep(0.62f, 0.8f, fbm(float(u / (1.5 * ppm)), float(v / (1.5 * ppm)), bs + 3, 2));
+                            col += L.light * float(0.2 * L.spec * men * glint);
+                            img[i] = col;
+                            if (m < 0.95) occl.data[i] = 255;
+                            continue;
+                        }
+                        // Its smooth surface mirrors the lamp: where the surface's normal is the
+                        // half-vector between lamp and camera, a soft-edged image of the lamp (on
+                        // the dome's flank, or a glint along the meniscus on the lamp's side).
+                        const double sx = 0.5 * (pool_h_mm(u + 1, v) - pool_h_mm(u - 1, v)) * px_per_mm;
+                        const double sy = 0.5 * (pool_h_mm(u, v + 1) - pool_h_mm(u, v - 1)) * px_per_mm;
+                        const Vec3 n_cam = Vec3(-sx, -sy, -1).normalized();
+                        const Vec3 p_cam = rays[i].cast<double>() * double(depth_cam[i]);
+                        const Vec3 half = ((L.light_offset_camera_mm - p_cam).normalized() - p_cam.normalized()).normalized();
+                        const float mirror = smoothstep(float(cos_soft), float(cos_lamp), float(n_cam.dot(half)));
+                        col += L.light * float(0.9 * L.spec * mirror * mirror * smoothstep(0.f, 0.08f, float(h)));
                         img[i] = col;
                         if (m < 0.95) occl.data[i] = 255;
                     }
@@ -1406,11 +1496,32 @@ PhantomCase generate_phantom_case(const PhantomSurface& S, const PhantomParams& 
         photo = focused;
         notes << "aperture_mm=" << fmt(aperture_mm, 1) << " ";
     }
+    if (L.bloom > 0) {
+        // Halation: light above the sensor's white point spreads in the lens and the sensor's
+        // stack, a tight halo and a wide veil around glare (a rendering stops at the clip).
+        cv::Mat excess, near_halo, wide_halo;
+        cv::subtract(photo, cv::Scalar::all(0.9), excess);
+        excess = cv::max(excess, 0.0);
+        cv::GaussianBlur(excess, near_halo, cv::Size(0, 0), 0.005 * rw);
+        cv::GaussianBlur(excess, wide_halo, cv::Size(0, 0), 0.03 * rw);
+        photo += (near_halo * 3.0 + wide_halo * 1.5) * L.bloom;
+    }
     // The sensor clips after the lens has blurred: glare stays saturated where it is bright.
     for (int v = 0; v < rh; ++v) {
         cv::Vec3f* row = photo.ptr<cv::Vec3f>(v);
         for (int u = 0; u < rw; ++u)
             for (int k = 0; k < 3; ++k) row[u][k] = 255.f * std::pow(std::clamp(row[u][k], 0.f, 1.f), 1 / 2.2f);
+    }
+    if (L.chroma > 0) {
+        // Lateral colour: the lens images red a little larger than blue, so edges far from the
+        // centre carry coloured fringes (about a pixel at the corners).
+        std::vector<cv::Mat> ch;
+        cv::split(photo, ch);  // BGR
+        for (const auto& [k, scale] : {std::pair{0, 1 - L.chroma}, std::pair{2, 1 + L.chroma}}) {
+            const cv::Matx23d A(scale, 0, Kr.cx * (1 - scale), 0, scale, Kr.cy * (1 - scale));
+            cv::warpAffine(ch[size_t(k)], ch[size_t(k)], A, ch[size_t(k)].size(), cv::INTER_LINEAR, cv::BORDER_REFLECT);
+        }
+        cv::merge(ch, photo);
     }
     cv::GaussianBlur(photo, photo, cv::Size(0, 0), L.blur_px);
     if (rw != W || rh != H) cv::resize(photo, photo, cv::Size(W, H), 0, 0, cv::INTER_CUBIC);
@@ -1436,7 +1547,9 @@ PhantomCase generate_phantom_case(const PhantomSurface& S, const PhantomParams& 
           << " sulcal_blood=" << fmt(cr.sah) << " blood_film_mm=" << fmt(cr.film_mm)
           << " lamp_spot_mm=" << fmt(cr.spot_r_mm, 0) << " spot_floor=" << fmt(cr.spot_floor) << " skin_prep=" << fmt(cr.prep)
           << " shininess=" << fmt(L.shininess, 0) << " spec=" << fmt(L.spec) << " exposure=" << fmt(L.exposure)
-          << " noise_sd=" << fmt(L.noise_sd)
+          << " noise_sd=" << fmt(L.noise_sd) << " photo_finish=" << (L.finish ? "yes" : "no")
+          << " drape_fold_slope=" << fmt(L.fold_slope) << " drape_fold_mm=" << fmt(L.fold_mm, 0) << " halation=" << fmt(L.bloom)
+          << " lateral_colour=" << fmt(L.chroma * 1e3) << "e-3" << " stubble=" << (L.stubble ? "yes" : "no")
           << " jpeg_quality=" << (out.jpeg ? out.jpeg_quality : (apply_jpeg_artefacts ? L.jpeg_quality : 0));
     out.notes = notes.str();
     return out;

@@ -323,6 +323,78 @@ TEST_F(Phantom, TheLampsSpotAndTheSkinPrepChangeLightAndScalpAndLeaveTheCaseAlon
     EXPECT_THROW(bad.validate(), InputError);
 }
 
+// The photographic finish is drawn from the look's own stream: the case (pose, landmarks, ROI,
+// targets) is the same with it and without. With it, the drapes' folds stand in relief (more
+// contrast at the folds' scale on the cloth), and glare spreads a halo around it. (Without it the
+// photos are those made before it, byte for byte: checked by hand on ev8, seed 101, when it came.)
+TEST_F(Phantom, ThePhotoFinishGivesTheDrapesReliefAndTheGlareAHaloAndLeavesTheCaseAlone) {
+    PhantomParams p;
+    p.seed = 9;
+    p.dslr_fraction = 0.0;
+    p.gauze_prob = p.blood_prob = 0.0;
+    p.fill_fraction = {0.5, 0.55};  // framed with the drapes in view
+    p.photo_finish = false;
+    const PhantomCase plain = generate_phantom_case(*surface_, p, 7);  // halation 0.40
+    EXPECT_NE(plain.notes.find(" photo_finish=no drape_fold_slope=0.00"), std::string::npos) << plain.notes;
+    PhantomParams q = p;
+    q.photo_finish = true;
+    const PhantomCase c = generate_phantom_case(*surface_, q, 7);
+    ASSERT_NO_FATAL_FAILURE(expect_noted_and_case_alone(c, plain, " drape_fold_slope="));
+    ASSERT_EQ(c.photo_bgr.size(), plain.photo_bgr.size());
+
+    // The cloth: pixels of the drapes' colour (green or blue above red) in both photos.
+    cv::Mat cloth(c.photo_bgr.size(), CV_8U, cv::Scalar(0));
+    for (int y = 0; y < c.photo_bgr.rows; ++y)
+        for (int x = 0; x < c.photo_bgr.cols; ++x) {
+            const cv::Vec3b a = c.photo_bgr.at<cv::Vec3b>(y, x), b = plain.photo_bgr.at<cv::Vec3b>(y, x);
+            const bool ca = std::max(a[0], a[1]) > a[2] + 15, cb = std::max(b[0], b[1]) > b[2] + 15;
+            cloth.at<uint8_t>(y, x) = ca && cb ? 255 : 0;
+        }
+    cv::erode(cloth, cloth, cv::getStructuringElement(cv::MORPH_ELLIPSE, cv::Size(25, 25)));  // away from hems and skin
+    ASSERT_GT(cv::countNonZero(cloth), c.photo_bgr.total() / 20) << "too little cloth in view to judge";
+    // Contrast at the folds' scale (a difference of Gaussians, 3 and 12 px), on the cloth.
+    auto fold_contrast = [&](const cv::Mat& bgr) {
+        cv::Mat grey, fine, coarse;
+        cv::cvtColor(bgr, grey, cv::COLOR_BGR2GRAY);
+        grey.convertTo(grey, CV_32F);
+        cv::GaussianBlur(grey, fine, cv::Size(0, 0), 3);
+        cv::GaussianBlur(grey, coarse, cv::Size(0, 0), 12);
+        return cv::mean(cv::abs(fine - coarse), cloth)[0];
+    };
+    const double relief_on = fold_contrast(c.photo_bgr), relief_off = fold_contrast(plain.photo_bgr);
+    EXPECT_GT(relief_on, 1.5 * relief_off) << "the drapes lie flat";
+
+    // The halo: around the glare (pixels clipped in the plain photo) the finished photo is
+    // brighter. The median change over a ring 4-16 px out, as the bone's pits darken a few
+    // pixels of a ring that lies on the bone; far from any glare, no change.
+    cv::Mat glare(c.photo_bgr.size(), CV_8U, cv::Scalar(0));
+    for (int y = 0; y < c.photo_bgr.rows; ++y)
+        for (int x = 0; x < c.photo_bgr.cols; ++x) {
+            const cv::Vec3b b = plain.photo_bgr.at<cv::Vec3b>(y, x);
+            glare.at<uint8_t>(y, x) = std::min({b[0], b[1], b[2]}) >= 250 ? 255 : 0;
+        }
+    ASSERT_GT(cv::countNonZero(glare), 50) << "no glare to judge the halo by";
+    cv::Mat inner, outer, far;
+    cv::dilate(glare, inner, cv::getStructuringElement(cv::MORPH_ELLIPSE, cv::Size(9, 9)));
+    cv::dilate(glare, outer, cv::getStructuringElement(cv::MORPH_ELLIPSE, cv::Size(33, 33)));
+    cv::dilate(glare, far, cv::getStructuringElement(cv::MORPH_ELLIPSE, cv::Size(161, 161)));
+    auto median_change = [&](const cv::Mat& where) {
+        std::vector<int> d;
+        for (int y = 0; y < c.photo_bgr.rows; ++y)
+            for (int x = 0; x < c.photo_bgr.cols; ++x)
+                if (where.at<uint8_t>(y, x)) {
+                    const cv::Vec3b a = c.photo_bgr.at<cv::Vec3b>(y, x), b = plain.photo_bgr.at<cv::Vec3b>(y, x);
+                    d.push_back(int(a[0]) + a[1] + a[2] - b[0] - b[1] - b[2]);
+                }
+        if (d.empty()) return 0;
+        std::nth_element(d.begin(), d.begin() + long(d.size() / 2), d.end());
+        return d[d.size() / 2];
+    };
+    const cv::Mat ring = outer & ~inner, away = ~far & ~cloth;
+    EXPECT_GE(median_change(ring), 3) << "no halo around the glare";
+    EXPECT_LE(std::abs(median_change(away)), 2) << "the finish changed the light far from glare";
+}
+
 TEST_F(Phantom, DslrCaseIsFullSizeJpeg) {
     PhantomParams p;
     p.seed = 3;

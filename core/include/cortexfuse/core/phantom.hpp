@@ -52,6 +52,12 @@ struct PhantomParams {
     /// landmarks and ROI do not depend on them, nor does one on the other. 0..1.
     double lamp_spot_prob = 0.8;
     double skin_prep_prob = 0.6;
+    /// The photographic finish: the drapes' folds in relief under the lamp, the lamp mirrored
+    /// in pools of blood (glints, not flecks), halation around glare, the lens' lateral colour,
+    /// pores and stubble on the scalp, pits in the bone. Drawn from the look's own stream, so a
+    /// seed's poses, landmarks and ROI are the same either way. Off: the appearance before it
+    /// (for comparison).
+    bool photo_finish = true;
     /// Probability of non-zero lens distortion (k1 in [-0.15, 0.08], small k2, p1, p2). 0..1.
     double distortion_prob = 0.4;
     /// Camera-to-craniotomy distance, mm. 100..1000.
