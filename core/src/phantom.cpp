@@ -477,12 +477,13 @@ void add_finish(Look& L, bool on) {
     Rng r(splitmix64(uint64_t(L.nseed) * 0x94D049BB133111EBull + 0xF1215Bull));
     L.finish = on;
     L.fold_mm = r.uni(5, 15);
-    L.fold_slope = on ? r.uni(0.4, 1.0) : (r.uni(), 0.0);
+    L.fold_slope = r.uni(0.4, 1.0);
     L.fold_psi = r.uni(0, kPi);
     L.lamp_half_deg = r.uni(1.0, 3.0);
-    L.bloom = on ? r.uni(0.1, 0.5) : (r.uni(), 0.0);
-    L.chroma = on ? r.uni(0, 0.0012) : (r.uni(), 0.0);
-    L.stubble = r.chance(0.7) && on;
+    L.bloom = r.uni(0.1, 0.5);
+    L.chroma = r.uni(0, 0.0012);
+    L.stubble = r.chance(0.7);
+    if (!on) L.fold_slope = L.bloom = L.chroma = 0, L.stubble = false;  // drawn all the same, then cleared
 }
 
 enum Layer : uint8_t { kDrape = 0, kSkin, kSkinCut, kBone, kDura, kBoneWall, kCortex, kDark, kBurr, kClip, kDuraFlap };
@@ -1253,9 +1254,10 @@ PhantomCase generate_phantom_case(const PhantomSurface& S, const PhantomParams& 
             auto pool_m = [&](int uu, int vv) {
                 return (Vec2(uu, vv) - bc).norm() / rpx + 0.7 * (fbm(float(uu / rpx * 1.5), float(vv / rpx * 1.5), bs, 3) - 0.5);
             };
+            auto pool_depth_mm = [&](double m) { return deep_mm * std::sqrt(std::max(0.0, 1 - m)); };
             auto pool_h_mm = [&](int uu, int vv) {
                 const double m = pool_m(uu, vv);
-                return deep_mm * std::sqrt(std::max(0.0, 1 - m)) +
+                return pool_depth_mm(m) +
                        0.015 * std::min(1.0, 4 * std::max(0.0, 1 - m)) * fbm(float(uu / (1.2 * ppm)), float(vv / (1.2 * ppm)), bs + 4, 2);
             };
             const double cos_lamp = std::cos(L.lamp_half_deg * kPi / 180), cos_soft = std::cos(2.0 * L.lamp_half_deg * kPi / 180);
@@ -1266,7 +1268,7 @@ PhantomCase generate_phantom_case(const PhantomSurface& S, const PhantomParams& 
                     if (m < 1.0 && layer[i] != kDrape) {
                         // The rim is a red stain over the tissue and the middle the blood's own
                         // colour, darker where it clots.
-                        const double h = deep_mm * std::sqrt(std::max(0.0, 1 - m));
+                        const double h = pool_depth_mm(m);
                         const float clot = fbm(float(u / (1.2f * ppm)), float(v / (1.2f * ppm)), bs + 2, 3);
                         const Col body = L.blood * (0.55f + 0.7f * clot) * float(L.ambient + L.diffuse);
                         Col col = through_blood(img[i], body, h);
@@ -1277,20 +1279,18 @@ PhantomCase generate_phantom_case(const PhantomSurface& S, const PhantomParams& 
                             const float men = smoothstep(0.84f, 0.88f, float(m)) * (1 - smoothstep(0.9f, 0.94f, float(m)));
                             const float glint = smoothstep(0.62f, 0.8f, fbm(float(u / (1.5 * ppm)), float(v / (1.5 * ppm)), bs + 3, 2));
                             col += L.light * float(0.2 * L.spec * men * glint);
-                            img[i] = col;
-                            if (m < 0.95) occl.data[i] = 255;
-                            continue;
+                        } else {
+                            // Its smooth surface mirrors the lamp: where the surface's normal is the
+                            // half-vector between lamp and camera, a soft-edged image of the lamp (on
+                            // the dome's flank, or a glint along the meniscus on the lamp's side).
+                            const double sx = 0.5 * (pool_h_mm(u + 1, v) - pool_h_mm(u - 1, v)) * px_per_mm;
+                            const double sy = 0.5 * (pool_h_mm(u, v + 1) - pool_h_mm(u, v - 1)) * px_per_mm;
+                            const Vec3 n_cam = Vec3(-sx, -sy, -1).normalized();
+                            const Vec3 p_cam = rays[i].cast<double>() * double(depth_cam[i]);
+                            const Vec3 half = ((L.light_offset_camera_mm - p_cam).normalized() - p_cam.normalized()).normalized();
+                            const float mirror = smoothstep(float(cos_soft), float(cos_lamp), float(n_cam.dot(half)));
+                            col += L.light * float(0.9 * L.spec * mirror * mirror * smoothstep(0.f, 0.08f, float(h)));
                         }
-                        // Its smooth surface mirrors the lamp: where the surface's normal is the
-                        // half-vector between lamp and camera, a soft-edged image of the lamp (on
-                        // the dome's flank, or a glint along the meniscus on the lamp's side).
-                        const double sx = 0.5 * (pool_h_mm(u + 1, v) - pool_h_mm(u - 1, v)) * px_per_mm;
-                        const double sy = 0.5 * (pool_h_mm(u, v + 1) - pool_h_mm(u, v - 1)) * px_per_mm;
-                        const Vec3 n_cam = Vec3(-sx, -sy, -1).normalized();
-                        const Vec3 p_cam = rays[i].cast<double>() * double(depth_cam[i]);
-                        const Vec3 half = ((L.light_offset_camera_mm - p_cam).normalized() - p_cam.normalized()).normalized();
-                        const float mirror = smoothstep(float(cos_soft), float(cos_lamp), float(n_cam.dot(half)));
-                        col += L.light * float(0.9 * L.spec * mirror * mirror * smoothstep(0.f, 0.08f, float(h)));
                         img[i] = col;
                         if (m < 0.95) occl.data[i] = 255;
                     }
