@@ -191,6 +191,11 @@ struct Crani {
     // Clips are placed by hand: each one's angle (fraction of the spacing) and length vary.
     uint64_t clip_seed = 0;
     double clip_jitter = 0;
+    // With the photographic finish (Look::finish) the clips are shaped as Raney clips, tapered
+    // towards the jaws with rounded corners, and each is turned off the radius by up to
+    // clip_tilt (rad); without it they are the plain bars drawn before, byte for byte.
+    bool clip_shaped = false;
+    double clip_tilt = 0;
 
     /// Whether (a, b), outside the bone cut, lies under the reflected dural flap; `edge_mm`: how
     /// far inside the flap's free edge.
@@ -269,9 +274,44 @@ struct Crani {
         }
         return best;
     }
+    /// Signed distance (mm, < 0 inside) from (a, b) to the nearest shaped clip's outline, and
+    /// where in that clip it lies: `along` 0 at the jaws (the skin edge) to 1 at the spring,
+    /// `across` -1..1, and the clip's axis (rad). +inf without clips.
+    double clip_sdf(const Vec2& ab, double* along01 = nullptr, double* across = nullptr, double* axis_rad = nullptr) const {
+        double best = std::numeric_limits<double>::infinity();
+        if (n_clips == 0) return best;
+        const double th = std::atan2(ab.y(), ab.x());
+        const double step = 2 * kPi / n_clips;
+        const double k0 = std::round((th - clip_th0) / step);
+        for (double k = k0 - 1; k <= k0 + 1; ++k) {
+            const int slot = ((int(k) % n_clips) + n_clips) % n_clips;
+            const uint64_t h = splitmix64(clip_seed + uint64_t(slot));
+            const double j1 = double(h >> 11) * 0x1.0p-53 - 0.5, j2 = double((h * 0x9E3779B97F4A7C15ull) >> 11) * 0x1.0p-53 - 0.5;
+            const double j3 = double(splitmix64(h) >> 11) * 0x1.0p-53 - 0.5;
+            const double thc = clip_th0 + (k + clip_jitter * 0.6 * j1) * step;
+            const double len = clip_len * (1 + clip_jitter * 0.3 * j2);
+            const double r0 = r_skin(thc) - 1.0;
+            const double tilt = 2 * clip_tilt * j3;
+            const Vec2 dir(std::cos(thc + tilt), std::sin(thc + tilt)), side(-dir.y(), dir.x());
+            const Vec2 q = ab - r0 * Vec2(std::cos(thc), std::sin(thc));
+            const double along = q.dot(dir), t = std::clamp(along / len, 0.0, 1.0);
+            // Narrower at the jaws than at the spring; the corners rounded (a rounded box).
+            const double half_w = 0.5 * clip_w * (0.85 + 0.3 * t), rr = 0.3 * clip_w;
+            const double px = std::abs(along - 0.5 * len) - (0.5 * len - rr), py = std::abs(q.dot(side)) - (half_w - rr);
+            const double d = std::hypot(std::max(px, 0.0), std::max(py, 0.0)) + std::min(std::max(px, py), 0.0) - rr;
+            if (d < best) {
+                best = d;
+                if (along01) *along01 = t;
+                if (across) *across = std::clamp(q.dot(side) / half_w, -1.0, 1.0);
+                if (axis_rad) *axis_rad = thc + tilt;
+            }
+        }
+        return best;
+    }
     /// Whether (a, b) on the skin lies under a scalp clip; `across` in [-1, 1] across its width.
     bool clip_at(const Vec2& ab, double* across) const {
         if (n_clips == 0) return false;
+        if (clip_shaped) return clip_sdf(ab, nullptr, across) < 0;
         const double th = std::atan2(ab.y(), ab.x()), rho = ab.norm();
         if (rho <= 0) return false;
         const double step = 2 * kPi / n_clips;
@@ -427,6 +467,15 @@ struct Look {
     double lamp_half_deg = 4;
     double bloom = 0.3, chroma = 0.0005;
     bool stubble = true;
+    // The rim of the opening, by hand (drawn after the above, so they kept their values): the
+    // clips turned off the radius by up to clip_tilt_deg; the dura cut with scissors, its edge
+    // ragged by dura_rag of its width; tack-up sutures (their count and colour) from its edge to
+    // the bone; soft tissue (pericranium, muscle) left on the outer part of the bone, up to
+    // tissue_frac of its width; cautery char along the bone's outer edge; trickles of blood
+    // from the scalp's cut edge over the skin.
+    double clip_tilt_deg = 0, dura_rag = 0, tissue_frac = 0, char_k = 0;
+    int n_sutures = 0, n_trickles = 0;
+    Col suture = Col(0.02f, 0.02f, 0.03f);
 };
 
 Look random_look(Rng& r) {
@@ -483,7 +532,17 @@ void add_finish(Look& L, bool on) {
     L.bloom = r.uni(0.1, 0.5);
     L.chroma = r.uni(0, 0.0012);
     L.stubble = r.chance(0.7);
-    if (!on) L.fold_slope = L.bloom = L.chroma = 0, L.stubble = false;  // drawn all the same, then cleared
+    L.clip_tilt_deg = r.uni(5, 20);
+    L.dura_rag = r.uni(0.3, 0.8);
+    L.n_sutures = r.integer(0, 4);
+    L.suture = r.chance(0.5) ? Col(0.015f, 0.015f, 0.02f) : Col(0.02f, 0.03f, 0.12f);  // black nylon, blue prolene
+    L.tissue_frac = r.uni(0.1, 0.6);
+    L.char_k = r.uni(0.2, 0.8);
+    L.n_trickles = r.integer(0, 4);
+    if (!on) {  // drawn all the same, then cleared
+        L.fold_slope = L.bloom = L.chroma = 0, L.stubble = false;
+        L.clip_tilt_deg = L.dura_rag = L.tissue_frac = L.char_k = 0, L.n_sutures = L.n_trickles = 0;
+    }
 }
 
 enum Layer : uint8_t { kDrape = 0, kSkin, kSkinCut, kBone, kDura, kBoneWall, kCortex, kDark, kBurr, kClip, kDuraFlap };
@@ -721,6 +780,8 @@ PhantomCase generate_phantom_case(const PhantomSurface& S, const PhantomParams& 
 
     Look L = random_look(rng);
     add_finish(L, P.photo_finish);
+    cr.clip_shaped = L.finish;
+    cr.clip_tilt = L.clip_tilt_deg * kPi / 180;
     out.jpeg = dslr || !rng.chance(P.png_fraction);
     out.jpeg_quality = dslr ? rng.integer(85, 96) : L.jpeg_quality;
     const bool apply_jpeg_artefacts = out.jpeg || rng.chance(0.5);
@@ -850,6 +911,53 @@ PhantomCase generate_phantom_case(const PhantomSurface& S, const PhantomParams& 
     const float ref_dist2 = float((light_w - cr.c).squaredNorm());
     const uint32_t ns = L.nseed;
     const double px_per_mm = Kr.fx / dist;
+    // The rim made by hand (finish): noise along the opening's circumference, sampled on a circle
+    // so that it closes on itself; `scale_mm`: its features' size along the rim.
+    const double rim_r = 0.5 * (cr.R1 + cr.R2);
+    auto rim_noise = [&](double th, double scale_mm, uint32_t seed, int oct) {
+        const float k = float(rim_r / scale_mm);
+        return fbm(k * float(std::cos(th)) + 50.f, k * float(std::sin(th)) + 50.f, seed, oct);
+    };
+    // The dura's cut edge at angle th, mm from the centre: an even band before the finish; with
+    // it, wandering in width and notched by the scissors' strokes.
+    auto dura_edge = [&](double th) {
+        if (L.dura_rag <= 0) return cr.r_bone(th) + cr.dura_w;
+        const double wob = rim_noise(th, 5, ns + 50, 3) - 0.5, teeth = rim_noise(th, 0.8, ns + 51, 1) - 0.5;
+        return cr.r_bone(th) + cr.dura_w * std::max(0.2, 1 + L.dura_rag * (2.5 * wob + 0.8 * teeth));
+    };
+    // Tack-up sutures, each from the dura's edge out to a hole drilled in the bone, and the
+    // blood's trickles from the scalp's edge: angles and sizes from a stream of the look's own.
+    std::array<double, 4> sut_th{}, sut_mm{}, tr_th{}, tr_len{}, tr_w{};
+    {
+        Rng rs(splitmix64(uint64_t(ns) * 0xA24BAED4963EE407ull + 0x5D7ull));
+        const double base = rs.uni(0, 2 * kPi), down = rs.uni(0, 2 * kPi);
+        for (size_t k = 0; k < 4; ++k) {
+            sut_th[k] = base + 2 * kPi * (double(k) + rs.uni(-0.3, 0.3)) / std::max(1, L.n_sutures);
+            sut_mm[k] = rs.uni(2.5, 4.5);
+            tr_th[k] = down + rs.uni(-0.7, 0.7);  // blood runs down one side of the head
+            tr_len[k] = rs.uni(5, 18);
+            tr_w[k] = rs.uni(1.0, 2.5);
+        }
+    }
+    const double line_half_mm = std::max(0.15, 0.6 / px_per_mm);  // a thread: at least a pixel wide
+    // How much of (a, b) on the bone or dura a suture covers (0..1).
+    auto suture_ink = [&](const Vec2& ab) {
+        float ink = 0;
+        const double th = std::atan2(ab.y(), ab.x()), rho = ab.norm();
+        for (int k = 0; k < L.n_sutures; ++k) {
+            const size_t kk = size_t(k);
+            const double r_in = dura_edge(sut_th[kk]) - 1.2, r_out = r_in + 1.2 + sut_mm[kk];
+            const double along = rho - r_in, lat = rho * std::remainder(th - sut_th[kk], 2 * kPi);
+            if (along < -1 || along > r_out - r_in + 1) continue;
+            const double bow = 0.4 * std::sin(kPi * std::clamp(along / (r_out - r_in), 0.0, 1.0));
+            if (along >= 0 && along <= r_out - r_in)
+                ink = std::max(ink, 1.f - smoothstep(float(line_half_mm * 0.5), float(line_half_mm * 1.5), float(std::abs(lat - bow))));
+            // The knot at the dura, the hole in the bone.
+            ink = std::max(ink, 1.f - smoothstep(0.4f, 0.7f, float(std::hypot(along, lat))));
+            ink = std::max(ink, 0.85f * (1.f - smoothstep(0.45f, 0.7f, float(std::hypot(along - (r_out - r_in), lat)))));
+        }
+        return ink;
+    };
     // The drapes' soft folds: a ripple across fold_psi whose phase wanders and whose height comes
     // and goes (cloth lies flat in places), in render px. Lit by the lamp, each fold shows a lit
     // and a shaded flank; a brightness pattern alone reads as print on the cloth, not as cloth.
@@ -906,7 +1014,7 @@ PhantomCase generate_phantom_case(const PhantomSurface& S, const PhantomParams& 
                 } else if (rho_b > cr.r_bone(th_b)) {
                     lay = cr.flap_at(ab_b, nullptr) ? kDuraFlap
                           : cr.burr_edge(ab_b) < 0  ? kBurr
-                          : rho_b < cr.r_bone(th_b) + cr.dura_w ? kDura
+                          : rho_b < dura_edge(th_b)             ? kDura
                                                                 : kBone;
                 } else if (rb.triangle[i] >= 0) {
                     const Vec3 p = interpolate_at(rb, S.mesh.triangles, S.mesh.vertices, u, v, Eigen::Vector3f(0, 0, 0)).cast<double>();
@@ -993,7 +1101,29 @@ PhantomCase generate_phantom_case(const PhantomSurface& S, const PhantomParams& 
                     // Blood stains on bone near the edge.
                     const float st = fbm(float(ab_b.x() / 5), float(ab_b.y() / 5), ns + 6, 3);
                     alb = mix(alb, L.blood * 1.6f, 0.8f * smoothstep(0.55f, 0.75f, st));
-                    c = shade(alb, nrm, qb, lay == kDura ? L.spec * 0.7 : 0.25, lay == kDura ? 50 : 12);
+                    double spec_k = lay == kDura ? L.spec * 0.7 : 0.25, shin = lay == kDura ? 50 : 12;
+                    if (lay == kBone && L.finish) {
+                        // Soft tissue left on the bone's outer part, as wide as the scraping left
+                        // it: pericranium and muscle, wet, fibres running out from the opening;
+                        // and char where the cautery stopped the bleeding at the scalp's edge.
+                        const double th = std::atan2(ab_b.y(), ab_b.x()), rho = ab_b.norm();
+                        const double in_mm = cr.r_skin(th) - rho;  // from the bone's outer edge
+                        const double tw = cr.bone_w * L.tissue_frac * std::max(0.0, 1 + 3.0 * (rim_noise(th, 6, ns + 52, 3) - 0.5));
+                        const float ragged = 0.8f * (fbm(float(ab_b.x() / 1.2), float(ab_b.y() / 1.2), ns + 53, 2) - 0.5f);
+                        const float m = 1.f - smoothstep(float(tw) - 0.5f, float(tw) + 0.5f, float(in_mm) + ragged);
+                        const float fibre = vnoise(float(rho / 2.5), float(th * rim_r / 0.3), ns + 54);
+                        const Col tissue = mix(L.skin_cut * 1.5f, rgb(200, 128, 116), 0.35f + 0.4f * fibre);
+                        alb = mix(alb, tissue, m);
+                        const float ch = float(L.char_k) * smoothstep(0.55f, 0.8f, fbm(float(ab_b.x() / 1.5), float(ab_b.y() / 1.5), ns + 55, 3)) *
+                                         (1.f - smoothstep(0.f, 3.f, float(in_mm)));
+                        alb = mix(alb, rgb(48, 30, 22), ch);
+                        spec_k = 0.25 + m * (L.spec * 0.6 - 0.25) * (1 - ch), shin = 12 + m * 28;
+                    }
+                    c = shade(alb, nrm, qb, spec_k, shin);
+                    if (L.n_sutures > 0) {
+                        const float ink = suture_ink(ab_b);
+                        if (ink > 0) c = mix(c, shade(L.suture, nrm, qb, 0.6, 40), ink);
+                    }
                     break;
                 }
                 case kBurr: {
@@ -1039,8 +1169,26 @@ PhantomCase generate_phantom_case(const PhantomSurface& S, const PhantomParams& 
                 case kClip: {
                     // A plastic scalp clip: rounded across its width, glossy.
                     double acr = 0;
-                    cr.clip_at(ab_s, &acr);
                     const Vec3 sph = (qs - cr.O).normalized();
+                    if (cr.clip_shaped) {
+                        // A Raney clip seen from above: its upper jaw domed across, the ends
+                        // bevelled, a groove along the middle and grip ribs at the spring's end.
+                        double al = 0, axis = 0;
+                        const double sd = cr.clip_sdf(ab_s, &al, &acr, &axis);
+                        const Vec2 dir(std::cos(axis), std::sin(axis));
+                        const Vec3 along3 = dir.x() * cr.e1 + dir.y() * cr.e2, side = -dir.y() * cr.e1 + dir.x() * cr.e2;
+                        const double bevel = 1 - smoothstep(0.f, 0.8f, float(-sd));  // 1 at the outline
+                        const double end = al < 0.5 ? -1.0 : 1.0;
+                        const float groove = (al > 0.08 && al < 0.92) ? 1.f - smoothstep(0.07f, 0.14f, float(std::abs(acr))) : 0.f;
+                        const float rib = al > 0.68 && al < 0.94 ? smoothstep(0.6f, 0.9f, float(std::sin(al * cr.clip_len / 0.7 * 2 * kPi))) : 0.f;
+                        const Vec3 nrm = (sph + 0.8 * acr * side + 0.9 * bevel * end * std::abs(2 * al - 1) * along3 -
+                                          0.6 * groove * (acr < 0 ? -1.0 : 1.0) * side)
+                                             .normalized();
+                        c = shade(cr.clip_col * (1.f - 0.5f * groove) * (1.f - 0.3f * rib), nrm, qs, 0.9, 90) *
+                            float(0.78 + 0.22 * (1 - acr * acr)) * float(1 - 0.35 * bevel);
+                        break;
+                    }
+                    cr.clip_at(ab_s, &acr);
                     const Vec2 dir = ab_s.normalized();
                     const Vec3 side = -dir.y() * cr.e1 + dir.x() * cr.e2;
                     const Vec3 nrm = (sph + 0.9 * acr * side).normalized();
@@ -1070,12 +1218,64 @@ PhantomCase generate_phantom_case(const PhantomSurface& S, const PhantomParams& 
                         const float m = float(cr.prep) * smoothstep(0.3f, 0.65f, 0.7f * blot + 0.3f * streak);
                         alb = mix(alb, L.iodine * (0.7f + 0.6f * t), m);
                     }
-                    alb = mix(alb, L.skin_cut, float(1 - smoothstep(0.f, 5.f, float(edge))));
-                    if (lay == kSkinCut) {
+                    // The cut edge's redness reaches into the skin: 5 mm before the finish; with
+                    // it as far as the bleeding and the cautery went, 1.5 to 8 mm along the rim.
+                    const float edge_w = L.finish ? float(5 * std::max(0.3, 1 + 3.0 * (rim_noise(th_s, 7, ns + 56, 3) - 0.5))) : 5.f;
+                    alb = mix(alb, L.skin_cut, float(1 - smoothstep(0.f, edge_w, float(edge))));
+                    const double spec_k = L.spec * 0.4;
+                    if (L.n_trickles > 0 && (lay == kSkin || (L.finish && edge > 0))) {
+                        // Blood run from the edge over the skin: narrowing as it goes, a bead at its end.
+                        for (int k = 0; k < L.n_trickles; ++k) {
+                            const size_t kk = size_t(k);
+                            const double along = rho_s - cr.r_skin(tr_th[kk]);  // from the cut edge
+                            if (along > tr_len[kk] + 2) continue;
+                            const double wig = 1.2 * (fbm(float(along / 5), float(k) * 7.f, ns + 57, 2) - 0.5) * along / 6;
+                            const double lat = rho_s * std::remainder(th_s - tr_th[kk], 2 * kPi) - wig;
+                            const double f = std::clamp(along / tr_len[kk], 0.0, 1.0);
+                            const double hw = tr_w[kk] * (1 - 0.5 * f) + 0.1 * tr_w[kk] * (1 - smoothstep(0.f, 1.5f, float(std::abs(along - tr_len[kk]))));
+                            // A rounded end: past its length, the distance from the end's centre.
+                            const double off = along > tr_len[kk] ? std::hypot(along - tr_len[kk], lat) : std::abs(lat);
+                            const float m = 1.f - smoothstep(float(hw) - 0.3f, float(hw) + 0.3f, float(off));
+                            if (m > 0) {
+                                // Thin, so the skin shows through; thickest at the edge and in the bead.
+                                // Drying, it is no glossier than the skin.
+                                const double h = 0.1 + 0.35 * (1 - f) * (1 - std::abs(lat) / std::max(hw, 0.1)) + 0.2 * (1 - smoothstep(0.f, 1.5f, float(std::abs(along - tr_len[kk]))));
+                                alb = mix(alb, through_blood(alb, L.blood, h), m);
+                            }
+                        }
+                    }
+                    // With the finish the cut edge's dark margin on the skin is ragged, 0.6 to 2.4 mm.
+                    const bool margin = !(L.finish && edge > 1.5 * std::max(0.4, 1 + 2.4 * (rim_noise(th_s, 2.5, ns + 60, 2) - 0.5)));
+                    if (lay == kSkinCut && margin) {
                         const float t2 = fbm(float(u * 0.15), float(v * 0.15), ns + 12, 3);
                         alb = L.skin_cut * (0.35f + 0.5f * t2);
+                        if (L.finish && hs) {
+                            // The scalp's cut wall in layers where it is not covered in blood: the
+                            // skin, the pale dermis, the yellow fat with its vessels, the white galea.
+                            // Depth into the wall from where the ray crosses the cut, between its
+                            // hits on the skin's sphere and the bone's.
+                            Vec3 qw;
+                            double depth_mm = 0.5 * (cr.h_skin - cr.h_bone);
+                            if (cr.hit_sphere(Cw, d, cr.h_bone, qw)) {
+                                const double rho_w = cr.ab(qw).norm(), rs = rho_s;
+                                const double f = std::clamp((cr.r_skin(th_s) - rs) / std::max(rho_w - rs, 1e-6), 0.0, 1.0);
+                                depth_mm = f * (cr.h_skin - cr.h_bone);
+                            }
+                            const float dz = float(depth_mm);
+                            const Col dermis = rgb(226, 186, 170), fat = rgb(222, 186, 110), galea = rgb(230, 226, 214);
+                            Col wall = dz < 0.3f ? L.skin * 0.8f : dz < 1.4f ? dermis : fat * (0.8f + 0.4f * t2);
+                            wall = mix(wall, galea, smoothstep(0.6f, 0.15f, float(cr.h_skin - cr.h_bone) - dz));
+                            const float wiped = smoothstep(0.52f, 0.72f, rim_noise(th_s, 4, ns + 59, 3));
+                            alb = mix(alb, through_blood(wall, L.blood, 0.04 + 0.12 * (1 - t2)), wiped);
+                            // Clots, and char from the cautery.
+                            const float clot = smoothstep(0.6f, 0.8f, fbm(float(ab_s.x() / 1.2), float(ab_s.y() / 1.2), ns + 58, 3));
+                            alb = mix(alb, L.blood * 0.5f, clot);
+                            alb = mix(alb, rgb(48, 30, 22), float(L.char_k) * 0.6f * smoothstep(0.6f, 0.85f, fbm(float(ab_s.x() / 2), float(ab_s.y() / 2), ns + 55, 3)));
+                        }
                     }
-                    c = shade(alb, nrm, hs ? qs : cr.c, L.spec * 0.4, 30);
+                    c = shade(alb, nrm, hs ? qs : cr.c, spec_k, 30);
+                    // The clips' contact shadow on the scalp.
+                    if (cr.clip_shaped && hs && lay == kSkin && cr.n_clips > 0) c *= float(0.5 + 0.5 * smoothstep(0.f, 1.5f, float(cr.clip_sdf(ab_s))));
                     // The towels' edge lies on the skin: a contact shadow along it.
                     if (hs && cr.n_towels > 0) c *= float(0.55 + 0.45 * smoothstep(0.f, 2.5f, float(cr.r_drape(th_s) - rho_s)));
                     break;
@@ -1550,6 +1750,8 @@ PhantomCase generate_phantom_case(const PhantomSurface& S, const PhantomParams& 
           << " noise_sd=" << fmt(L.noise_sd) << " photo_finish=" << (L.finish ? "yes" : "no")
           << " drape_fold_slope=" << fmt(L.fold_slope) << " drape_fold_mm=" << fmt(L.fold_mm, 0) << " halation=" << fmt(L.bloom)
           << " lateral_colour=" << fmt(L.chroma * 1e3) << "e-3" << " stubble=" << (L.stubble ? "yes" : "no")
+          << " clip_tilt_deg=" << fmt(L.clip_tilt_deg, 1) << " dura_rag=" << fmt(L.dura_rag) << " sutures=" << L.n_sutures
+          << " bone_tissue=" << fmt(L.tissue_frac) << " char=" << fmt(L.char_k) << " blood_trickles=" << L.n_trickles
           << " jpeg_quality=" << (out.jpeg ? out.jpeg_quality : (apply_jpeg_artefacts ? L.jpeg_quality : 0));
     out.notes = notes.str();
     return out;

@@ -395,6 +395,41 @@ TEST_F(Phantom, ThePhotoFinishGivesTheDrapesReliefAndTheGlareAHaloAndLeavesTheCa
     EXPECT_LE(std::abs(median_change(away)), 2) << "the finish changed the light far from glare";
 }
 
+// The rim as made by hand (part of the finish): the scalp's cut wall shows its layers where the
+// blood is wiped off (skin, pale dermis, yellow fat, white galea) instead of one dark red band;
+// the clips are shaped, the dura's edge ragged, sutures and trickles of blood drawn, all from
+// the look's own stream, so the case stays as it was.
+TEST_F(Phantom, TheRimByHandShowsTheScalpsLayersAndLeavesTheCaseAlone) {
+    PhantomParams p;
+    p.seed = 101;
+    p.dslr_fraction = 0.0;
+    p.gauze_prob = p.blood_prob = 0.0;
+    p.photo_finish = false;
+    const PhantomCase plain = generate_phantom_case(*surface_, p, 0);
+    EXPECT_NE(plain.notes.find(" clip_tilt_deg=0.0 dura_rag=0.00 sutures=0"), std::string::npos) << plain.notes;
+    PhantomParams q = p;
+    q.photo_finish = true;
+    const PhantomCase c = generate_phantom_case(*surface_, q, 0);
+    ASSERT_NO_FATAL_FAILURE(expect_noted_and_case_alone(c, plain, " dura_rag="));
+    ASSERT_NO_FATAL_FAILURE(expect_noted_and_case_alone(c, plain, " clip_tilt_deg="));
+    ASSERT_EQ(c.photo_bgr.size(), plain.photo_bgr.size());
+
+    // The cut wall: pixels a deep red in the plain photo (no pools or gauze in this case; the
+    // veins stay as they were). In the finished photo some show the wall's pale and yellow layers
+    // where it is wiped: bright, green well up towards red (2301 of 39703 pixels; without the
+    // layers, 301: the edge's margin on the skin made ragged).
+    int red = 0, layered = 0;
+    for (int y = 0; y < c.photo_bgr.rows; ++y)
+        for (int x = 0; x < c.photo_bgr.cols; ++x) {
+            const cv::Vec3b b = plain.photo_bgr.at<cv::Vec3b>(y, x), a = c.photo_bgr.at<cv::Vec3b>(y, x);
+            if (!(b[2] >= 50 && b[1] < 0.4 * b[2] && b[0] < 0.45 * b[2])) continue;
+            ++red;
+            if (a[2] >= 90 && a[1] > 0.45 * a[2]) ++layered;
+        }
+    ASSERT_GT(red, 500) << "no cut wall in view to judge";
+    EXPECT_GT(layered, red / 40) << layered << " of " << red << " deep red pixels show the scalp's layers";
+}
+
 TEST_F(Phantom, DslrCaseIsFullSizeJpeg) {
     PhantomParams p;
     p.seed = 3;
