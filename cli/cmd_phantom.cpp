@@ -56,7 +56,7 @@ void add_phantom(CLI::App& app) {
     cmd->add_option("--lamp-spot-prob", p.lamp_spot_prob, "probability that the OR lamp's spot lights the field (else evenly, as a flash)")->capture_default_str();
     cmd->add_option("--skin-prep-prob", p.skin_prep_prob, "probability of iodine skin prep staining the scalp")->capture_default_str();
     cmd->add_flag("!--no-photo-finish", p.photo_finish,
-                  "leave out the photographic finish (drape folds in relief, glints in blood, halation, lateral colour, stubble)");
+                  "leave out the photographic finish (drape folds in relief, glints in blood, halation, lateral colour, stubble, the rim of the opening by hand)");
     cmd->add_option("--distortion-prob", p.distortion_prob, "probability of lens distortion")->capture_default_str();
     cmd->add_option("--png-fraction", p.png_fraction, "fraction of non-DSLR photos written as PNG")->capture_default_str();
     cmd->add_option("--max-tilt-deg", p.max_tilt_deg, "largest off-normal tilt of the camera")->capture_default_str();

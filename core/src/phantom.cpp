@@ -475,6 +475,10 @@ struct Look {
     // from the scalp's cut edge over the skin.
     double clip_tilt_deg = 0, dura_rag = 0, tissue_frac = 0, char_k = 0;
     int n_sutures = 0, n_trickles = 0;
+    // The dura as a membrane held open (drawn after the rim's draws): meningeal vessels of
+    // strength dura_vessels, greyer and bluer in places by up to dura_grey, folded towards the
+    // tack-ups, its cut edge thickened and stained.
+    double dura_vessels = 0, dura_grey = 0;
     Col suture = Col(0.02f, 0.02f, 0.03f);
 };
 
@@ -539,9 +543,12 @@ void add_finish(Look& L, bool on) {
     L.tissue_frac = r.uni(0.1, 0.6);
     L.char_k = r.uni(0.2, 0.8);
     L.n_trickles = r.integer(0, 4);
+    L.dura_vessels = r.uni(0.4, 0.9);
+    L.dura_grey = r.uni(0.1, 0.5);
     if (!on) {  // drawn all the same, then cleared
         L.fold_slope = L.bloom = L.chroma = 0, L.stubble = false;
         L.clip_tilt_deg = L.dura_rag = L.tissue_frac = L.char_k = 0, L.n_sutures = L.n_trickles = 0;
+        L.dura_vessels = L.dura_grey = 0;
     }
 }
 
@@ -1092,7 +1099,7 @@ PhantomCase generate_phantom_case(const PhantomSurface& S, const PhantomParams& 
                 }
                 case kBone:
                 case kDura: {
-                    const Vec3 nrm = (qb - cr.O).normalized();
+                    Vec3 nrm = (qb - cr.O).normalized();
                     const float t = fbm(float(ab_b.x() / 2), float(ab_b.y() / 2), ns + 5, 4);
                     Col alb = lay == kBone ? L.bone * (0.8f + 0.35f * t) : L.dura * (0.85f + 0.25f * t);
                     // The outer table's vascular pits, each a dark red point.
@@ -1102,6 +1109,29 @@ PhantomCase generate_phantom_case(const PhantomSurface& S, const PhantomParams& 
                     const float st = fbm(float(ab_b.x() / 5), float(ab_b.y() / 5), ns + 6, 3);
                     alb = mix(alb, L.blood * 1.6f, 0.8f * smoothstep(0.55f, 0.75f, st));
                     double spec_k = lay == kDura ? L.spec * 0.7 : 0.25, shin = lay == kDura ? 50 : 12;
+                    if (lay == kDura && L.finish) {
+                        // A membrane held open: folds running out towards the tack-ups and the
+                        // bone (long radially, short around), greyer and bluer where it is thin,
+                        // meningeal arteries in pairs of branching lines, and at its cut edge
+                        // (towards the opening) thickened, curled in and stained with blood.
+                        const double th = std::atan2(ab_b.y(), ab_b.x()), rho = ab_b.norm();
+                        const Vec2 rad(std::cos(th), std::sin(th)), tan2(-rad.y(), rad.x());
+                        const Vec3 rad3 = rad.x() * cr.e1 + rad.y() * cr.e2, tan3 = tan2.x() * cr.e1 + tan2.y() * cr.e2;
+                        const float fold = fbm(float(rho / 4), float(th * rim_r / 1.2), ns + 61, 3) - 0.5f;
+                        const double in_mm = rho - cr.r_bone(th);  // from the cut edge
+                        const double curl = 1 - smoothstep(0.f, 1.f, float(in_mm));
+                        nrm = (nrm + 0.7 * double(fold) * tan3 - 0.6 * curl * rad3).normalized();
+                        // Its hue, not its lightness: the membrane is no darker for being thin.
+                        const Col grey_blue = Col(0.55f, 0.58f, 0.66f) * (alb.sum() / 1.79f);
+                        alb = mix(alb, grey_blue, float(L.dura_grey) * fbm(float(ab_b.x() / 7), float(ab_b.y() / 7), ns + 62, 2));
+                        const float mv = 1.f - std::abs(2.f * fbm(float(ab_b.x() / 9), float(ab_b.y() / 9), ns + 63, 3) - 1.f);
+                        const float mv2 = 1.f - std::abs(2.f * fbm(float(ab_b.x() / 4), float(ab_b.y() / 4), ns + 64, 2) - 1.f);
+                        const float vessel = std::max(smoothstep(0.93f, 0.975f, mv), 0.7f * smoothstep(0.955f, 0.985f, mv2));
+                        alb = mix(alb, L.artery * 0.6f, float(L.dura_vessels) * vessel);
+                        alb *= 0.85f + 0.3f * (fold + 0.5f);  // the folds' flanks and troughs
+                        const float stain = float(curl) * smoothstep(0.35f, 0.6f, fbm(float(ab_b.x() / 1.5), float(ab_b.y() / 1.5), ns + 65, 2));
+                        alb = mix(alb * float(0.75 + 0.25 * (1 - curl)), L.blood * 1.3f, 0.7f * stain);
+                    }
                     if (lay == kBone && L.finish) {
                         // Soft tissue left on the bone's outer part, as wide as the scraping left
                         // it: pericranium and muscle, wet, fibres running out from the opening;
@@ -1752,6 +1782,7 @@ PhantomCase generate_phantom_case(const PhantomSurface& S, const PhantomParams& 
           << " lateral_colour=" << fmt(L.chroma * 1e3) << "e-3" << " stubble=" << (L.stubble ? "yes" : "no")
           << " clip_tilt_deg=" << fmt(L.clip_tilt_deg, 1) << " dura_rag=" << fmt(L.dura_rag) << " sutures=" << L.n_sutures
           << " bone_tissue=" << fmt(L.tissue_frac) << " char=" << fmt(L.char_k) << " blood_trickles=" << L.n_trickles
+          << " dura_vessels=" << fmt(L.dura_vessels) << " dura_grey=" << fmt(L.dura_grey)
           << " jpeg_quality=" << (out.jpeg ? out.jpeg_quality : (apply_jpeg_artefacts ? L.jpeg_quality : 0));
     out.notes = notes.str();
     return out;
