@@ -277,21 +277,34 @@ struct Crani {
     /// Signed distance (mm, < 0 inside) from (a, b) to the nearest shaped clip's outline, and
     /// where in that clip it lies: `along` 0 at the jaws (the skin edge) to 1 at the spring,
     /// `across` -1..1, and the clip's axis (rad). +inf without clips.
+    /// Where the clip of slot k (any integer; its draws are those of k modulo n_clips) sits: its
+    /// angle on the skin's edge and its length (each offset by clip_jitter), its jaws' distance
+    /// from the centre, and its turn off the radius (by up to clip_tilt).
+    struct ClipPlace {
+        double th, len, r0, tilt;
+    };
+    ClipPlace clip_place(double k) const {
+        const int slot = ((int(k) % n_clips) + n_clips) % n_clips;
+        const uint64_t h = splitmix64(clip_seed + uint64_t(slot));
+        const double j1 = double(h >> 11) * 0x1.0p-53 - 0.5, j2 = double((h * 0x9E3779B97F4A7C15ull) >> 11) * 0x1.0p-53 - 0.5;
+        const double j3 = double(splitmix64(h) >> 11) * 0x1.0p-53 - 0.5;
+        ClipPlace c;
+        c.th = clip_th0 + (k + clip_jitter * 0.6 * j1) * (2 * kPi / n_clips);
+        c.len = clip_len * (1 + clip_jitter * 0.3 * j2);
+        c.r0 = r_skin(c.th) - 1.0;
+        c.tilt = 2 * clip_tilt * j3;
+        return c;
+    }
+    /// The slot nearest angle th. A clip's offsets may move it off its slot, so callers try
+    /// the slots on either side too.
+    double clip_slot_near(double th) const { return std::round((th - clip_th0) / (2 * kPi / n_clips)); }
     double clip_sdf(const Vec2& ab, double* along01 = nullptr, double* across = nullptr, double* axis_rad = nullptr) const {
         double best = std::numeric_limits<double>::infinity();
         if (n_clips == 0) return best;
-        const double th = std::atan2(ab.y(), ab.x());
-        const double step = 2 * kPi / n_clips;
-        const double k0 = std::round((th - clip_th0) / step);
+        const double k0 = clip_slot_near(std::atan2(ab.y(), ab.x()));
         for (double k = k0 - 1; k <= k0 + 1; ++k) {
-            const int slot = ((int(k) % n_clips) + n_clips) % n_clips;
-            const uint64_t h = splitmix64(clip_seed + uint64_t(slot));
-            const double j1 = double(h >> 11) * 0x1.0p-53 - 0.5, j2 = double((h * 0x9E3779B97F4A7C15ull) >> 11) * 0x1.0p-53 - 0.5;
-            const double j3 = double(splitmix64(h) >> 11) * 0x1.0p-53 - 0.5;
-            const double thc = clip_th0 + (k + clip_jitter * 0.6 * j1) * step;
-            const double len = clip_len * (1 + clip_jitter * 0.3 * j2);
-            const double r0 = r_skin(thc) - 1.0;
-            const double tilt = 2 * clip_tilt * j3;
+            const ClipPlace cp = clip_place(k);
+            const double thc = cp.th, len = cp.len, r0 = cp.r0, tilt = cp.tilt;
             const Vec2 dir(std::cos(thc + tilt), std::sin(thc + tilt)), side(-dir.y(), dir.x());
             const Vec2 q = ab - r0 * Vec2(std::cos(thc), std::sin(thc));
             const double along = q.dot(dir), t = std::clamp(along / len, 0.0, 1.0);
@@ -312,19 +325,11 @@ struct Crani {
     bool clip_at(const Vec2& ab, double* across) const {
         if (n_clips == 0) return false;
         if (clip_shaped) return clip_sdf(ab, nullptr, across) < 0;
-        const double th = std::atan2(ab.y(), ab.x()), rho = ab.norm();
-        if (rho <= 0) return false;
-        const double step = 2 * kPi / n_clips;
-        const double k0 = std::round((th - clip_th0) / step);
-        // A clip's own offsets (clip_jitter 0: evenly spaced, all alike); with them the nearest
-        // slot's clip may have moved away, so its neighbours are tried too.
+        if (ab.norm() <= 0) return false;
+        const double k0 = clip_slot_near(std::atan2(ab.y(), ab.x()));
         for (double k = k0 - 1; k <= k0 + 1; ++k) {
-            const int slot = ((int(k) % n_clips) + n_clips) % n_clips;
-            const uint64_t h = splitmix64(clip_seed + uint64_t(slot));
-            const double j1 = double(h >> 11) * 0x1.0p-53 - 0.5, j2 = double((h * 0x9E3779B97F4A7C15ull) >> 11) * 0x1.0p-53 - 0.5;
-            const double thc = clip_th0 + (k + clip_jitter * 0.6 * j1) * step;
-            const double len = clip_len * (1 + clip_jitter * 0.3 * j2);
-            const double r0 = r_skin(thc) - 1.0;
+            const ClipPlace cp = clip_place(k);
+            const double thc = cp.th, len = cp.len, r0 = cp.r0;
             const Vec2 dir(std::cos(thc), std::sin(thc)), side(-dir.y(), dir.x());
             const Vec2 q = ab - r0 * dir;
             const double along = q.dot(dir), acr = q.dot(side);
