@@ -399,8 +399,8 @@ TEST_F(Phantom, ThePhotoFinishGivesTheDrapesReliefAndTheGlareAHaloAndLeavesTheCa
 
 // The rim as made by hand (part of the finish): the scalp's cut wall shows its layers where the
 // blood is wiped off (skin, pale dermis, yellow fat, white galea) instead of one dark red band;
-// the clips are shaped, the dura's edge ragged, sutures and trickles of blood drawn, all from
-// the look's own stream, so the case stays as it was.
+// the dura carries meningeal vessels; the clips are shaped, the dura's edge ragged, sutures and
+// trickles of blood drawn, all from the look's own stream, so the case stays as it was.
 TEST_F(Phantom, TheRimByHandShowsTheScalpsLayersAndTheDurasVesselsAndLeavesTheCaseAlone) {
     PhantomParams p;
     p.seed = 101;
