@@ -329,7 +329,11 @@ export async function wholeCaseE2E(ctx) {
   await page.getByTestId("case-tab-fused").tap();
   const tTex = Date.now();
   await page.waitForFunction((tex) => { const m = document.querySelector('[data-testid="fused-model"]');
+    // The picture of the view now wanted (data-seq), with or without a brain surface: without
+    // one the screen once showed a full picture that carried no number, and the 1920 visit
+    // below waited for it in vain (CI, ASan half, 5 Dec 2026).
     return m?.dataset.full === "true" && m.complete && m.naturalWidth > 300 && (!tex || m.dataset.textured === "true") &&
+           Number(m.dataset.seq) === window.cfViewSeq() &&
            document.querySelector('[data-testid="fused-photo"]')?.naturalWidth > 100; }, planned, { timeout: 60000 * slow });
   step(`fused view${planned ? " with the photo on the model" : ""} at full size after ${((Date.now() - tTex) / 1000).toFixed(1)} s: ${await page.getByTestId("fused-info").textContent()}`);
   await shot(planned ? "12c-fused-textured" : "12-fused");

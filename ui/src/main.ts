@@ -967,8 +967,11 @@ function caseFused(id: number, body: HTMLElement, alive: Alive, got: (c: CaseRec
       const pb = await apiBlob(`/api/cases/${id}/photos/${photo.id}`);
       const u = URL.createObjectURL(pb); urls.push(u); photoImg.src = u;
     } catch (e) { showError(e); }
+    // Without a brain surface: one plain render a view. It carries its view number like every
+    // picture (img data-seq), and an answer for an older tap arriving late is dropped.
     const renderModel = async (preset: string) => {
       presetBox.querySelectorAll("button").forEach((b) => b.classList.toggle("active", b.dataset.value === preset));
+      const seq = ++viewSeq;
       try {
         const req = { width: w, height: hh, preset, camera: photo.intrinsics as unknown, T_camera_from_world: reg.final_pose!.T_camera_from_world };
         let r: RenderedImage;
@@ -981,10 +984,11 @@ function caseFused(id: number, body: HTMLElement, alive: Alive, got: (c: CaseRec
           if (!(e instanceof ApiError && e.status === 400 && /missing "camera"/.test(e.message))) throw e;
           r = await apiRender({ ...req, camera: { camera: photo.intrinsics } });
         }
-        if (!alive()) return;
+        if (!alive() || seq !== viewSeq) return;
         const u = URL.createObjectURL(r.blob); urls.push(u); modelImg.src = u;
         modelImg.dataset.full = "true";
         modelImg.dataset.preset = preset;
+        modelImg.dataset.seq = String(seq);
       } catch (e) { showError(e); }
     };
     presetBox.append(...["cortex_t1", "surface_white"].map((p) => h("button", { class: "btn", "data-value": p, onclick: () => renderModel(p) }, p.replace(/_/g, " "))));
