@@ -32,12 +32,22 @@ LabelVolume skull_strip(const Volume& t1, const SkullStripParams& p, const Progr
     const std::string kName = "skull strip";
     if (t1.voxels.size() != t1.geom.voxel_count() || t1.voxels.empty())
         throw InputError(kName, "volume voxels do not match its dimensions");
-    for (float x : t1.voxels)
+    float lo = t1.voxels.front(), hi = t1.voxels.front();
+    for (float x : t1.voxels) {
         if (!std::isfinite(x)) throw InputError(kName, "volume holds NaN or infinite intensities");
+        lo = std::min(lo, x);
+        hi = std::max(hi, x);
+    }
     for (int a = 0; a < 3; ++a)
         if (t1.geom.dims[a] < 8)
             throw InputError(kName, "volume too small (" + std::to_string(t1.geom.dims[a]) +
                                         " voxels along an axis) to hold a head");
+    // Before any work: the surface model alone would spend seconds (a minute under a sanitizer)
+    // evolving over a volume with nothing in it. A nearly constant one is caught after it, on
+    // the robust range (itk_skull_strip.cpp).
+    if (lo == hi)
+        throw InputError(kName, "no intensity contrast (constant volume, every voxel " + std::to_string(lo) +
+                                    "): there is no head to skull-strip");
 
     // All parameters are checked before any work.
     if (!(p.bet_fraction >= 0.05 && p.bet_fraction <= 0.95))

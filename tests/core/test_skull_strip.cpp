@@ -9,6 +9,7 @@
 #include <random>
 
 #include "cortexfuse/core/error.hpp"
+#include "cortexfuse/core/progress.hpp"
 #include "cortexfuse/core/skull_strip.hpp"
 #include "cortexfuse/core/volume.hpp"
 #include "../sanitized.hpp"
@@ -360,6 +361,12 @@ TEST(SkullStrip, EmptyVolumeRefused) {
 TEST(SkullStrip, ConstantVolumeRefused) {
     const std::string e = error_of(blank({64, 64, 64}, 2.0, 100.f));
     EXPECT_NE(e.find("constant"), std::string::npos) << e;
+    // Refused before any work: no stage reported (the surface model used to evolve over it first).
+    std::vector<std::string> stages;
+    Progress progress;
+    progress.report = [&](const std::string& stage, double) { stages.push_back(stage); };
+    EXPECT_THROW(skull_strip(blank({64, 64, 64}, 2.0, 100.f), {}, &progress), InputError);
+    EXPECT_TRUE(stages.empty()) << stages.front();
 }
 
 TEST(SkullStrip, TinyVolumeRefused) {
