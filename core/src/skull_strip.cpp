@@ -42,7 +42,7 @@ LabelVolume skull_strip(const Volume& t1, const SkullStripParams& p, const Progr
         if (t1.geom.dims[a] < 8)
             throw InputError(kName, "volume too small (" + std::to_string(t1.geom.dims[a]) +
                                         " voxels along an axis) to hold a head");
-    // Before any work: the surface model alone would spend seconds (a minute under a sanitizer)
+    // Before any work: the surface model alone would spend seconds (16-30 s under the sanitizers)
     // evolving over a volume with nothing in it. A nearly constant one is caught after it, on
     // the robust range (itk_skull_strip.cpp).
     if (lo == hi)
