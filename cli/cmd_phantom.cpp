@@ -57,6 +57,8 @@ void add_phantom(CLI::App& app) {
     cmd->add_option("--skin-prep-prob", p.skin_prep_prob, "probability of iodine skin prep staining the scalp")->capture_default_str();
     cmd->add_flag("!--no-photo-finish", p.photo_finish,
                   "leave out the photographic finish (drape folds in relief, glints in blood, halation, lateral colour, stubble, the rim of the opening by hand)");
+    cmd->add_flag("!--no-tissue-optics", p.tissue_optics,
+                  "leave out, from the finish, the light scattered under the cortex and the lamp's soft image in blood");
     cmd->add_option("--distortion-prob", p.distortion_prob, "probability of lens distortion")->capture_default_str();
     cmd->add_option("--png-fraction", p.png_fraction, "fraction of non-DSLR photos written as PNG")->capture_default_str();
     cmd->add_option("--max-tilt-deg", p.max_tilt_deg, "largest off-normal tilt of the camera")->capture_default_str();

@@ -485,6 +485,15 @@ struct Look {
     // tack-ups, its cut edge thickened and stained.
     double dura_vessels = 0, dura_grey = 0;
     Col suture = Col(0.02f, 0.02f, 0.03f);
+    // Light scattered under the cortex's surface (drawn last of all, from its own stream): the
+    // red channel's spread at the surface in mm (green and blue spread less: blood absorbs them)
+    // and the share of the light that comes out away from where it went in. 0: none.
+    double scatter_mm = 0, scatter_share = 0;
+    // A pool of blood as a mirror (same stream, after the scatter): the OR lamp's half-width as
+    // the half-vector sees it (a light head is some 60 cm across at about a metre, so its image
+    // is large and soft, not a point), and the ripple of its surface, mm (isotropic, so the
+    // lamp's image breaks into rounded glints rather than the blocks a lattice noise gives).
+    double pool_lamp_half_deg = 0, pool_ripple_mm = 0;
 };
 
 Look random_look(Rng& r) {
@@ -531,7 +540,7 @@ Look random_look(Rng& r) {
     return L;
 }
 
-void add_finish(Look& L, bool on) {
+void add_finish(Look& L, bool on, bool tissue_optics) {
     Rng r(splitmix64(uint64_t(L.nseed) * 0x94D049BB133111EBull + 0xF1215Bull));
     L.finish = on;
     L.fold_mm = r.uni(5, 15);
@@ -555,6 +564,16 @@ void add_finish(Look& L, bool on) {
         L.clip_tilt_deg = L.dura_rag = L.tissue_frac = L.char_k = 0, L.n_sutures = L.n_trickles = 0;
         L.dura_vessels = L.dura_grey = 0;
     }
+    // The cortex scatters light under its surface (grey matter's reduced scattering length is
+    // about 1 mm in the red, less in green and blue), so a photograph's shading is soft and
+    // reddish where a surface model's is hard: lit crowns bleed into the sulci's edges. Its own
+    // stream, after all the above, so none of their values moved.
+    Rng s(splitmix64(uint64_t(L.nseed) * 0xBF58476D1CE4E5B9ull + 0x55CA7Eull));
+    L.scatter_mm = s.uni(0.5, 1.3);
+    L.scatter_share = s.uni(0.45, 0.8);
+    L.pool_lamp_half_deg = s.uni(1.5, 4);
+    L.pool_ripple_mm = s.uni(0.01, 0.04);
+    if (!on || !tissue_optics) L.scatter_mm = L.scatter_share = L.pool_lamp_half_deg = L.pool_ripple_mm = 0;
 }
 
 enum Layer : uint8_t { kDrape = 0, kSkin, kSkinCut, kBone, kDura, kBoneWall, kCortex, kDark, kBurr, kClip, kDuraFlap };
@@ -791,7 +810,7 @@ PhantomCase generate_phantom_case(const PhantomSurface& S, const PhantomParams& 
     const Intrinsics Kr = K.resized(rw, rh);
 
     Look L = random_look(rng);
-    add_finish(L, P.photo_finish);
+    add_finish(L, P.photo_finish, P.tissue_optics);
     cr.clip_shaped = L.finish;
     cr.clip_tilt = L.clip_tilt_deg * kPi / 180;
     out.jpeg = dslr || !rng.chance(P.png_fraction);
@@ -919,6 +938,11 @@ PhantomCase generate_phantom_case(const PhantomSurface& S, const PhantomParams& 
     std::vector<Col> img(npx, Col::Zero());
     std::vector<Vec3> pworld(npx, Vec3::Zero());
     std::vector<float> depth_cam(npx, float(dist + 60));  // camera z of what each pixel shows, mm
+    // With subsurface scatter the cortex's light and colour are kept apart until the light has
+    // been spread (after the loop): its diffuse light (grey; the lamp is white), its albedo, its gloss.
+    const bool scatter = L.scatter_mm > 0;
+    std::vector<float> ctx_light(scatter ? npx : 0, 0.f);
+    std::vector<Col> ctx_albedo(scatter ? npx : 0, Col::Zero()), ctx_gloss(scatter ? npx : 0, Col::Zero());
     const Vec3 light_dir_ref = (light_w - cr.c).normalized();
     const float ref_dist2 = float((light_w - cr.c).squaredNorm());
     const uint32_t ns = L.nseed;
@@ -1097,9 +1121,17 @@ PhantomCase generate_phantom_case(const PhantomSurface& S, const PhantomParams& 
                     Vec3 t1 = cr.e1 - nrm * nrm.dot(cr.e1), t2 = cr.e2 - nrm * nrm.dot(cr.e2);
                     nrm = (nrm - (1 - 0.7 * film_smooth) * (double(gx) * t1 + double(gy) * t2)).normalized();
                     const double wet = L.spec * (1 - 0.5 * smoothstep(1.f, 4.f, sd)) * (1 + 0.5 * film_smooth);
-                    c = shade(alb, nrm, p, wet, L.shininess);
                     // Deep sulci get little light.
-                    c *= float(1 - 0.45 * smoothstep(2.f, 8.f, sd));
+                    const float deep = float(1 - 0.45 * smoothstep(2.f, 8.f, sd));
+                    if (scatter) {
+                        ctx_light[i] = shade(Col::Ones(), nrm, p, 0, L.shininess)[0] * deep;
+                        ctx_gloss[i] = shade(Col::Zero(), nrm, p, wet, L.shininess) * deep;
+                        ctx_albedo[i] = alb;
+                        c = alb * ctx_light[i] + ctx_gloss[i];
+                        break;
+                    }
+                    c = shade(alb, nrm, p, wet, L.shininess);
+                    c *= deep;
                     break;
                 }
                 case kBone:
@@ -1393,6 +1425,38 @@ PhantomCase generate_phantom_case(const PhantomSurface& S, const PhantomParams& 
     });
     (void)light_dir_ref;
 
+    // ---- light scattered under the cortex's surface
+    // Screen-space, as film and games render skin: each channel's diffuse light is spread by a
+    // near and a wide lobe (a Gaussian of the channel's width in mm at the cortex), over cortex
+    // pixels only (a normalised convolution, so the bone's light does not leak in), then the
+    // albedo and the gloss (which is reflected at the surface, so not spread) are put back on.
+    if (scatter) {
+        cv::Mat light(rh, rw, CV_32F), mask(rh, rw, CV_32F);
+        for (size_t i = 0; i < npx; ++i) {
+            const bool on = layer[i] == kCortex;
+            mask.ptr<float>()[i] = on ? 1.f : 0.f;
+            light.ptr<float>()[i] = on ? ctx_light[i] : 0.f;
+        }
+        // Red spreads furthest; blood absorbs green and blue within a fraction of it.
+        const double width[3] = {1.0, 0.45, 0.3};
+        cv::Mat spread[3];
+        for (int ch = 0; ch < 3; ++ch) {
+            const double sigma_px = std::max(0.3, L.scatter_mm * width[ch] * px_per_mm);
+            cv::Mat num, den;
+            cv::GaussianBlur(light, num, cv::Size(0, 0), sigma_px, sigma_px, cv::BORDER_REPLICATE);
+            cv::GaussianBlur(mask, den, cv::Size(0, 0), sigma_px, sigma_px, cv::BORDER_REPLICATE);
+            spread[ch] = num / cv::max(den, 1e-3f);
+        }
+        const float share[3] = {float(L.scatter_share), float(L.scatter_share * 0.8), float(L.scatter_share * 0.7)};
+        tbb::parallel_for(size_t(0), npx, [&](size_t i) {
+            if (layer[i] != kCortex) return;
+            Col lit;
+            for (int ch = 0; ch < 3; ++ch)
+                lit[ch] = (1 - share[ch]) * ctx_light[i] + share[ch] * spread[ch].ptr<float>()[i];
+            img[i] = ctx_albedo[i] * lit + ctx_gloss[i];
+        });
+    }
+
     // ---- visible cortex mask (render size)
     cv::Mat cortex(rh, rw, CV_8U, cv::Scalar(0));
     for (size_t i = 0; i < npx; ++i)
@@ -1495,7 +1559,27 @@ PhantomCase generate_phantom_case(const PhantomSurface& S, const PhantomParams& 
                 return pool_depth_mm(m) +
                        0.015 * std::min(1.0, 4 * std::max(0.0, 1 - m)) * fbm(float(uu / (1.2 * ppm)), float(vv / (1.2 * ppm)), bs + 4, 2);
             };
-            const double cos_lamp = std::cos(L.lamp_half_deg * kPi / 180), cos_soft = std::cos(2.0 * L.lamp_half_deg * kPi / 180);
+            const double lamp_deg = L.pool_lamp_half_deg > 0 ? L.pool_lamp_half_deg : L.lamp_half_deg;
+            const double cos_lamp = std::cos(lamp_deg * kPi / 180), cos_soft = std::cos(2.0 * lamp_deg * kPi / 180);
+            // With the finish, the surface's height over the pool's box (one pixel of margin):
+            // the meniscus dome plus a ripple of smoothed white noise, isotropic.
+            cv::Mat pool_h;
+            if (L.finish && L.pool_ripple_mm > 0 && x1 >= x0 && y1 >= y0) {
+                cv::Mat ripple(y1 - y0 + 3, x1 - x0 + 3, CV_32F);
+                cv::RNG noise(uint64_t(bs) * 0x9E3779B97F4A7C15ull + 0x9001ull);
+                noise.fill(ripple, cv::RNG::NORMAL, 0.0, 1.0);
+                const double sig = std::max(0.8, 0.5 * px_per_mm);
+                cv::GaussianBlur(ripple, ripple, cv::Size(0, 0), sig, sig, cv::BORDER_REFLECT);
+                cv::Scalar mean, sd;
+                cv::meanStdDev(ripple, mean, sd);
+                ripple = (ripple - mean[0]) * (L.pool_ripple_mm / std::max(sd[0], 1e-9));
+                pool_h = cv::Mat(ripple.size(), CV_32F);
+                for (int y = 0; y < pool_h.rows; ++y)
+                    for (int x = 0; x < pool_h.cols; ++x) {
+                        const double m = pool_m(x0 - 1 + x, y0 - 1 + y);
+                        pool_h.at<float>(y, x) = float(pool_depth_mm(m) + std::min(1.0, 4 * std::max(0.0, 1 - m)) * ripple.at<float>(y, x));
+                    }
+            }
             for (int v = y0; v <= y1; ++v)
                 for (int u = x0; u <= x1; ++u) {
                     const size_t i = size_t(v) * rw + u;
@@ -1518,8 +1602,15 @@ PhantomCase generate_phantom_case(const PhantomSurface& S, const PhantomParams& 
                             // Its smooth surface mirrors the lamp: where the surface's normal is the
                             // half-vector between lamp and camera, a soft-edged image of the lamp (on
                             // the dome's flank, or a glint along the meniscus on the lamp's side).
-                            const double sx = 0.5 * (pool_h_mm(u + 1, v) - pool_h_mm(u - 1, v)) * px_per_mm;
-                            const double sy = 0.5 * (pool_h_mm(u, v + 1) - pool_h_mm(u, v - 1)) * px_per_mm;
+                            double sx, sy;
+                            if (!pool_h.empty()) {
+                                const int x = u - x0 + 1, y = v - y0 + 1;
+                                sx = 0.5 * double(pool_h.at<float>(y, x + 1) - pool_h.at<float>(y, x - 1)) * px_per_mm;
+                                sy = 0.5 * double(pool_h.at<float>(y + 1, x) - pool_h.at<float>(y - 1, x)) * px_per_mm;
+                            } else {
+                                sx = 0.5 * (pool_h_mm(u + 1, v) - pool_h_mm(u - 1, v)) * px_per_mm;
+                                sy = 0.5 * (pool_h_mm(u, v + 1) - pool_h_mm(u, v - 1)) * px_per_mm;
+                            }
                             const Vec3 n_cam = Vec3(-sx, -sy, -1).normalized();
                             const Vec3 p_cam = rays[i].cast<double>() * double(depth_cam[i]);
                             const Vec3 half = ((L.light_offset_camera_mm - p_cam).normalized() - p_cam.normalized()).normalized();
@@ -1788,6 +1879,8 @@ PhantomCase generate_phantom_case(const PhantomSurface& S, const PhantomParams& 
           << " clip_tilt_deg=" << fmt(L.clip_tilt_deg, 1) << " dura_rag=" << fmt(L.dura_rag) << " sutures=" << L.n_sutures
           << " bone_tissue=" << fmt(L.tissue_frac) << " char=" << fmt(L.char_k) << " blood_trickles=" << L.n_trickles
           << " dura_vessels=" << fmt(L.dura_vessels) << " dura_grey=" << fmt(L.dura_grey)
+          << " scatter_mm=" << fmt(L.scatter_mm) << " scatter_share=" << fmt(L.scatter_share)
+          << " pool_lamp_half_deg=" << fmt(L.pool_lamp_half_deg, 1) << " pool_ripple_mm=" << fmt(L.pool_ripple_mm, 3)
           << " jpeg_quality=" << (out.jpeg ? out.jpeg_quality : (apply_jpeg_artefacts ? L.jpeg_quality : 0));
     out.notes = notes.str();
     return out;

@@ -58,6 +58,12 @@ struct PhantomParams {
     /// seed's poses, landmarks and ROI are the same either way. Off: the appearance before it
     /// (for comparison).
     bool photo_finish = true;
+    /// Part of the finish (nothing without it): light scattered under the cortex's surface, so
+    /// its shading is soft and reddish at the sulci's edges as in a photograph of tissue, not
+    /// hard as on a plastic model; and pools of blood mirroring a lamp of a light head's size
+    /// through a rippled surface (rounded glints). Drawn from a stream of its own, so the rest
+    /// of the finish and the case are the same either way. Off: the finish before it.
+    bool tissue_optics = true;
     /// Probability of non-zero lens distortion (k1 in [-0.15, 0.08], small k2, p1, p2). 0..1.
     double distortion_prob = 0.4;
     /// Camera-to-craniotomy distance, mm. 100..1000.
