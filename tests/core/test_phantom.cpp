@@ -207,6 +207,19 @@ static void expect_noted_and_case_alone(const PhantomCase& c, const PhantomCase&
     EXPECT_EQ(c.targets_world_mm, plain.targets_world_mm);
 }
 
+// The same case without and with one part of the look (`part`, a flag of PhantomParams), with
+// neither gauze nor blood on a small photo: {without, with}.
+static std::pair<PhantomCase, PhantomCase> case_without_and_with(const PhantomSurface& surface, PhantomParams p,
+                                                                 bool PhantomParams::*part, int index) {
+    p.dslr_fraction = 0.0;
+    p.gauze_prob = p.blood_prob = 0.0;
+    p.*part = false;
+    PhantomCase without = generate_phantom_case(surface, p, index);
+    p.*part = true;
+    PhantomCase with = generate_phantom_case(surface, p, index);
+    return {std::move(without), std::move(with)};
+}
+
 // The case's ROI polygon filled (255) on a mask of the photo's size.
 static cv::Mat roi_mask_of(const PhantomCase& c) {
     cv::Mat mask = cv::Mat::zeros(c.photo_bgr.size(), CV_8U);
@@ -330,15 +343,9 @@ TEST_F(Phantom, TheLampsSpotAndTheSkinPrepChangeLightAndScalpAndLeaveTheCaseAlon
 TEST_F(Phantom, ThePhotoFinishGivesTheDrapesReliefAndTheGlareAHaloAndLeavesTheCaseAlone) {
     PhantomParams p;
     p.seed = 9;
-    p.dslr_fraction = 0.0;
-    p.gauze_prob = p.blood_prob = 0.0;
     p.fill_fraction = {0.5, 0.55};  // framed with the drapes in view
-    p.photo_finish = false;
-    const PhantomCase plain = generate_phantom_case(*surface_, p, 7);  // halation 0.40
+    const auto [plain, c] = case_without_and_with(*surface_, p, &PhantomParams::photo_finish, 7);  // halation 0.40
     EXPECT_NE(plain.notes.find(" photo_finish=no drape_fold_slope=0.00"), std::string::npos) << plain.notes;
-    PhantomParams q = p;
-    q.photo_finish = true;
-    const PhantomCase c = generate_phantom_case(*surface_, q, 7);
     ASSERT_NO_FATAL_FAILURE(expect_noted_and_case_alone(c, plain, " drape_fold_slope="));
     ASSERT_EQ(c.photo_bgr.size(), plain.photo_bgr.size());
 
@@ -404,14 +411,8 @@ TEST_F(Phantom, ThePhotoFinishGivesTheDrapesReliefAndTheGlareAHaloAndLeavesTheCa
 TEST_F(Phantom, TheRimByHandShowsTheScalpsLayersAndTheDurasVesselsAndLeavesTheCaseAlone) {
     PhantomParams p;
     p.seed = 101;
-    p.dslr_fraction = 0.0;
-    p.gauze_prob = p.blood_prob = 0.0;
-    p.photo_finish = false;
-    const PhantomCase plain = generate_phantom_case(*surface_, p, 0);
+    const auto [plain, c] = case_without_and_with(*surface_, p, &PhantomParams::photo_finish, 0);
     EXPECT_NE(plain.notes.find(" clip_tilt_deg=0.0 dura_rag=0.00 sutures=0"), std::string::npos) << plain.notes;
-    PhantomParams q = p;
-    q.photo_finish = true;
-    const PhantomCase c = generate_phantom_case(*surface_, q, 0);
     ASSERT_NO_FATAL_FAILURE(expect_noted_and_case_alone(c, plain, " dura_rag="));
     ASSERT_NO_FATAL_FAILURE(expect_noted_and_case_alone(c, plain, " clip_tilt_deg="));
     ASSERT_EQ(c.photo_bgr.size(), plain.photo_bgr.size());
@@ -454,15 +455,9 @@ TEST_F(Phantom, TheRimByHandShowsTheScalpsLayersAndTheDurasVesselsAndLeavesTheCa
 TEST_F(Phantom, TissueOpticsSoftenTheCortexRedderItsShadowsAndRoundThePoolsGlints) {
     PhantomParams p;
     p.seed = 9;
-    p.dslr_fraction = 0.0;
-    p.gauze_prob = p.blood_prob = 0.0;
-    p.tissue_optics = false;
-    const PhantomCase plain = generate_phantom_case(*surface_, p, 0);
+    const auto [plain, c] = case_without_and_with(*surface_, p, &PhantomParams::tissue_optics, 0);
     EXPECT_NE(plain.notes.find(" scatter_mm=0.00 scatter_share=0.00 pool_lamp_half_deg=0.0 pool_ripple_mm=0.000"), std::string::npos)
         << plain.notes;
-    PhantomParams q = p;
-    q.tissue_optics = true;
-    const PhantomCase c = generate_phantom_case(*surface_, q, 0);
     ASSERT_NO_FATAL_FAILURE(expect_noted_and_case_alone(c, plain, " scatter_mm="));
     ASSERT_NO_FATAL_FAILURE(expect_noted_and_case_alone(c, plain, " pool_ripple_mm="));
     ASSERT_EQ(c.photo_bgr.size(), plain.photo_bgr.size());
