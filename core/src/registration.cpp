@@ -151,6 +151,13 @@ RegistrationParams RegistrationParams::defaults() {
     // 12 mm trends and the sulcal hull; about half of a 250 px frame's rays go (docs/registration.md,
     // "Fewer rays where only the wide blurs look").
     p.outer_ray_stride = 2;
+    // Thirty-first session: a stage renders no wider than puts 6 pixels across its blur's FWHM
+    // at the pivot. The stages' widths were set on views where a 2 mm FWHM spans about 4-6 px at
+    // 250-375 px; a zoomed-in view (a DSLR's telephoto, the camera close) spanned up to 12, twice
+    // the rays for nothing the blurred images keep. All 520 runs of the seven sets paired with
+    // the defaults before: 493 -> 496 pass, -0.001 +- 0.009 mm; `bench register` 2.49 -> 1.5 s
+    // (docs/registration.md, "Rays to the blur's measure").
+    p.max_fwhm_px = 6;
     // Eighteenth session: a given pose (the protocol's misaligned start) gets the landmarks' other
     // fits as moves, as the landmark pose gets them as starts. On the chris head's narrow DSLR view
     // (case 0003) PnP's best fit leaves the targets 19 mm off in depth; from the landmarks another
@@ -208,6 +215,7 @@ void RegistrationParams::validate(const std::string& ctx) const {
     if (!(sample_distance_mm >= 0.1 && sample_distance_mm <= 5)) bad("sample_distance_mm must be 0.1..5");
     if (!(roi_margin_fraction >= 0 && roi_margin_fraction <= 2)) bad("roi_margin_fraction must be 0..2");
     if (outer_ray_stride < 1 || outer_ray_stride > 8) bad("outer_ray_stride must be 1..8 (1: every ray)");
+    if (!(max_fwhm_px == 0 || (max_fwhm_px >= 2 && max_fwhm_px <= 100))) bad("max_fwhm_px must be 0 (off) or 2..100");
     if (!(depth_weight >= 0 && depth_weight <= 1)) bad("depth_weight must be 0..1");
     if (!(sulcal_weight >= 0 && sulcal_weight <= 1)) bad("sulcal_weight must be 0..1");
     if (!std::isnan(surface_tissue_fraction) && !(surface_tissue_fraction >= -0.5 && surface_tissue_fraction <= 1.5))
@@ -316,6 +324,7 @@ json to_json(const RegistrationParams& p) {
     else j["surface_tissue_fraction"] = p.surface_tissue_fraction;
     j["roi_margin_fraction"] = p.roi_margin_fraction;
     j["outer_ray_stride"] = p.outer_ray_stride;
+    j["max_fwhm_px"] = p.max_fwhm_px;
     j["binning"] = p.binning;
     j["robust_range"] = p.robust_range;
     j["estimate_light"] = p.estimate_light;
@@ -375,6 +384,7 @@ RegistrationParams registration_params_from_json(const json& j, const std::strin
                                             : j.at("surface_tissue_fraction").get<double>();
         p.roi_margin_fraction = j.value("roi_margin_fraction", p.roi_margin_fraction);
         p.outer_ray_stride = j.value("outer_ray_stride", p.outer_ray_stride);
+        p.max_fwhm_px = j.value("max_fwhm_px", p.max_fwhm_px);
         p.binning = j.value("binning", p.binning);
         p.robust_range = j.value("robust_range", p.robust_range);
         p.estimate_light = j.value("estimate_light", p.estimate_light);
@@ -437,7 +447,8 @@ json result_to_json(const RegistrationResult& r) {
     for (const auto& s : r.stages)
         j["stages"].push_back({{"name", s.name}, {"start", s.start}, {"fwhm_mm", s.params.fwhm_mm},
                                {"step_mm", s.params.step_mm}, {"step_deg", s.params.step_deg},
-                               {"render_width_px", s.params.render_width_px}, {"best_" + r.params.metric, s.best_similarity},
+                               {"render_width_px", s.params.render_width_px}, {"render_width_used_px", s.render_width_used_px},
+                               {"best_" + r.params.metric, s.best_similarity},
                                {"best_nmi", s.best_similarity}, {"best_cost", s.best_cost},
                                {"evaluations", s.evaluations}, {"seconds", s.seconds}});
     j["parameters"] = to_json(r.params);
@@ -729,10 +740,22 @@ public:
         if (!(depth_mm > 1.0))
             throw InputError("initial pose", "the brain is behind the camera (pivot depth " + std::to_string(depth_mm) + " mm)");
         depth_mm_ = depth_mm;
+        if (width_depth_mm_ <= 0) width_depth_mm_ = depth_mm;
+    }
+
+    /// The width a stage renders at: its render_width_px, or narrower where its blur would span
+    /// more than max_fwhm_px there (rounded up to a multiple of 8, at least 64 px).
+    int width_for(const StageParams& st) const {
+        const int w = st.render_width_px;
+        if (p_.max_fwhm_px <= 0 || width_depth_mm_ <= 0) return w;
+        const double fwhm_px = st.fwhm_mm * (in_.camera.fx * w / in_.camera.width) / width_depth_mm_;
+        if (!(fwhm_px > p_.max_fwhm_px)) return w;
+        const int narrow = int(std::ceil(w * p_.max_fwhm_px / fwhm_px / 8.0)) * 8;
+        return std::clamp(narrow, std::min(w, 64), w);
     }
 
     double similarity(const Pose& T, const StageParams& st) {
-        Level& L = level(st.render_width_px);
+        Level& L = level(width_for(st));
         ropt_.sample_distance_mm = st.sample_distance_mm > 0 ? st.sample_distance_mm : p_.sample_distance_mm;
         if (L.blurred_fwhm_mm != st.fwhm_mm) {
             filter(L.photo.channel, L.photo_blur, st.fwhm_mm, L);
@@ -887,6 +910,7 @@ private:
     cv::Mat rendered_blur_, lowpass_, mixed_, depth_, hull_, darkened_;
     std::vector<float> vals_;
     double depth_mm_ = 300;
+    double width_depth_mm_ = 0;  // the first depth set: the stages' widths follow it (width_for)
 };
 
 /// The soft landmark prior: weight * max(0, rms - rms_landmark_fit - tolerance)^2, rms in
@@ -1107,6 +1131,7 @@ RegistrationResult Registration::run(const PhotoInput& in, const Progress* progr
         rep.best_cost = best_cost;
         rep.evaluations = evaluations;
         rep.seconds = seconds_since(t0);
+        rep.render_width_used_px = scorer.width_for(st);
         rep.T_camera_from_world = T;
         res.stages.push_back(rep);
     };

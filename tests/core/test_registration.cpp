@@ -629,6 +629,45 @@ TEST(Registration, AnOuterRayStrideKeepsTheSimilarityLandscape) {
     EXPECT_EQ(registration_params_from_json(to_json(strided), "params").outer_ray_stride, 2);
 }
 
+TEST(Registration, MaxFwhmPxRendersAStageNarrowerWhereItsBlurWouldSpanMorePixels) {
+    // A stage whose FWHM would span more than max_fwhm_px pixels at its render width renders
+    // narrower (a multiple of 8, at least 64 px); 0 keeps every stage at its own width. The
+    // widths follow the first pivot depth, so every stage of one width uses one grid.
+    const Fixture& f = fixture();
+    RegistrationParams wide = small_params();
+    wide.max_fwhm_px = 0;
+    RegistrationParams narrow = wide;
+    narrow.max_fwhm_px = 2;  // below every stage's span on this 750 px case: all narrower
+    const RegistrationResult a = Registration(f.c.volume, f.c.mask, wide).run(f.c.photo);
+    const RegistrationResult b = Registration(f.c.volume, f.c.mask, narrow).run(f.c.photo);
+    ASSERT_FALSE(a.stages.empty());
+    ASSERT_FALSE(b.stages.empty());
+    for (const auto& s : a.stages) EXPECT_EQ(s.render_width_used_px, s.params.render_width_px) << s.name;
+    int narrower = 0;
+    std::map<std::string, int> width_of;
+    for (const auto& s : b.stages) {
+        EXPECT_LE(s.render_width_used_px, s.params.render_width_px) << s.name;
+        EXPECT_GE(s.render_width_used_px, std::min(64, s.params.render_width_px)) << s.name;
+        if (s.render_width_used_px < s.params.render_width_px) {
+            ++narrower;
+            EXPECT_EQ(s.render_width_used_px % 8, 0) << s.name;
+        }
+        // One stage, one width, whichever start or finalist ran it.
+        const std::string key = s.name + "/" + std::to_string(s.params.fwhm_mm) + "/" + std::to_string(s.params.render_width_px);
+        auto [it, fresh] = width_of.emplace(key, s.render_width_used_px);
+        if (!fresh) EXPECT_EQ(it->second, s.render_width_used_px) << key;
+    }
+    EXPECT_GT(narrower, 0) << "max_fwhm_px 2 left every stage at its width";
+    const nlohmann::json j = to_json(narrow);
+    EXPECT_EQ(registration_params_from_json(j, "params").max_fwhm_px, 2);
+    EXPECT_EQ(RegistrationParams::defaults().max_fwhm_px, 6);
+    for (const double bad_value : {-1.0, 1.0, 1000.0}) {
+        RegistrationParams bad = wide;
+        bad.max_fwhm_px = bad_value;
+        EXPECT_THROW(bad.validate("params"), InputError) << bad_value;
+    }
+}
+
 TEST(Registration, APoseLookingAwayFromTheBrainIsAClearInputError) {
     const Fixture& f = fixture();
     Registration reg(f.c.volume, f.c.mask, small_params());

@@ -150,6 +150,12 @@ struct RegistrationParams {
     /// blurs (the high-pass's shading trends and the sulcal hull, 12 mm), which a coarser
     /// lattice feeds as well. 1: every ray.
     int outer_ray_stride = 1;
+    /// A stage whose blur would span more than this many pixels (FWHM at the pivot's depth) at
+    /// its render width is rendered narrower, so that it spans this many: a camera close to the
+    /// cortex or zoomed in sees the ROI large, and the blurred images then hold nothing the
+    /// extra rays add. Fixed once a run from the initial pivot depth, so every finalist is scored
+    /// on the same grid. 0: every stage at its render_width_px.
+    double max_fwhm_px = 0;
     /// The seed's subspaces: starting offsets (rx, ry, rz deg, tx, ty, tz mm) about the pivot,
     /// each searched independently through `search_stages`.
     std::vector<PoseParams> starts = {{0, 0, 0, 0, 0, 0}};
@@ -204,6 +210,8 @@ struct StageReport {
     double best_cost = 0;
     int evaluations = 0;
     double seconds = 0;
+    /// The width it rendered at: params.render_width_px, or narrower by max_fwhm_px.
+    int render_width_used_px = 0;
     /// The pose the stage ended at (its best); the light grid's report: the pose it scored.
     Pose T_camera_from_world = Pose::Identity();
 };
