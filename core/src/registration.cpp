@@ -155,8 +155,9 @@ RegistrationParams RegistrationParams::defaults() {
     // at the pivot. The stages' widths were set on views where a 2 mm FWHM spans about 4-6 px at
     // 250-375 px; a zoomed-in view (a DSLR's telephoto, the camera close) spanned up to 12, twice
     // the rays for nothing the blurred images keep. All 520 runs of the seven sets paired with
-    // the defaults before: 493 -> 496 pass, -0.001 +- 0.009 mm; `bench register` 2.49 -> 1.5 s
-    // (docs/registration.md, "Rays to the blur's measure").
+    // the defaults before: 493 -> 496 pass, -0.001 +- 0.009 mm; `bench register` 1.86-2.00 s
+    // against 2.79-3.47 s for every width in the same runs (docs/registration.md, "Rays to the
+    // blur's measure").
     p.max_fwhm_px = 6;
     // Eighteenth session: a given pose (the protocol's misaligned start) gets the landmarks' other
     // fits as moves, as the landmark pose gets them as starts. On the chris head's narrow DSLR view
