@@ -640,7 +640,7 @@ TEST(Registration, MaxFwhmPxRendersAStageNarrowerWhereItsBlurWouldSpanMorePixels
     RegistrationParams wide = small_params();
     wide.max_fwhm_px = 0;
     RegistrationParams narrow = wide;
-    narrow.max_fwhm_px = 2;  // below every stage's span on this 750 px case: all narrower
+    narrow.max_fwhm_px = 2;  // below the stages' spans on this 750 px case, so some render narrower
     const RegistrationResult a = Registration(f.c.volume, f.c.mask, wide).run(f.c.photo);
     const RegistrationResult b = Registration(f.c.volume, f.c.mask, narrow).run(f.c.photo);
     ASSERT_FALSE(a.stages.empty());
