@@ -1,8 +1,8 @@
 #version 450 core
 // The ray caster of core/src/raycast_cpu.cpp, for NLAYERS co-registered volumes (defined by
 // the renderer when it builds the program, 1..4). Per pixel: the ray from the camera through
-// the pixel (undistorted on the CPU into u_rays), samples on the lattice t = n * step (mm from
-// the camera), trilinear interpolation of the quantised volume (0..4095), the transfer
+// the pixel (undistorted on the CPU into u_rays), samples on the lattice t = u_phase + n * step (mm
+// from the camera), trilinear interpolation of the quantised volume (0..4095), the transfer
 // function as a 4096-entry table, two bisection steps and a secant step to the first crossing
 // of the reference layer's surface level (depth and shading there), Lambert headlight shading from the central-
 // difference gradient, front-to-back compositing, early termination, and empty-space skipping
@@ -49,6 +49,7 @@ uniform int u_grad_n[NLAYERS];              // gradient-opacity points (0: none)
 uniform vec2 u_grad_pts[NLAYERS * 8];
 uniform float u_iso;                        // layer 0's surface level (quantised), < 0: none
 uniform float u_step;
+uniform float u_phase;  // samples at t = u_phase + n * u_step (RenderOptions::sample_anchor_world_mm)
 uniform float u_ambient;
 uniform float u_diffuse;
 uniform float u_term;
@@ -159,7 +160,7 @@ void main() {
             const ivec2 cell = clamp(ivec2(floor((ray_cam.xy / ray_cam.z - u_start_origin) * u_start_inv_cell)), ivec2(0), u_start_cells - 1);
             t0 = max(t0, u_start_z[cell.y * u_start_cells.x + cell.x] / ray_cam.z - 0.05);
         }
-        float t = ceil(t0 / step) * step;
+        float t = u_phase + ceil((t0 - u_phase) / step) * step;
         bool done = false;
         bool have_ref = false;  // the next composited sample is the refined surface crossing
         float t_ref = 0.0;
@@ -189,7 +190,7 @@ void main() {
                     // Jump to where the ray leaves the invisible cell(s), on the lattice, and
                     // sample there in this same iteration (a point in an empty cell finds
                     // nothing): a jump and the sample after it cost one loop step, not two.
-                    t = max(ceil(t_exit / step + 1e-4) * step, t + step);
+                    t = max(u_phase + ceil((t_exit - u_phase) / step + 1e-4) * step, t + step);
                 }
                 for (int l = 0; l < NLAYERS; ++l) {
                     if (lt1[l] <= lt0[l] || t < lt0[l] || t > lt1[l] || t >= t_mesh) continue;

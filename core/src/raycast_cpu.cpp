@@ -284,6 +284,11 @@ public:
                              .cast<float>())
                             .normalized();
         f.cam_world = Tw.topRightCorner<3, 1>().cast<float>();
+        if (opt.sample_anchor_world_mm) {
+            const auto& a = *opt.sample_anchor_world_mm;
+            const double dist = (Eigen::Vector3d(a[0], a[1], a[2]) - Tw.topRightCorner<3, 1>()).norm();
+            f.phase = float(std::fmod(dist, opt.sample_distance_mm));
+        }
         const bool iso_skip = opt.surface_only && !iso_cell_bits_.empty();
         f.brick_distance = iso_skip ? iso_brick_distance_.data() : brick_distance_.data();
         f.cell_bits = iso_skip ? iso_cell_bits_.data() : cell_bits_.data();
@@ -330,6 +335,7 @@ private:
         const uint8_t* brick_distance;  // the empty-space maps this frame steps with (borrowed)
         const uint64_t* cell_bits;
         const RayStartMap* start_map;  // where rays may start (borrowed); null: at the box
+        float phase = 0.f;             // the sample lattice's offset, mm (RenderOptions::sample_anchor_world_mm)
     };
 
     // Trilinear sample of the quantised volume at index-space p (must be inside [0, d-1)).
@@ -391,14 +397,16 @@ private:
         // (Without a surface level, no opacity reaching 0.5, the first visible sample is shown.)
         const bool surface_only = opt.surface_only;
         if (t1 > t0) {
-            // Samples on a fixed lattice t = n * step so that moving the camera slightly does
-            // not make the sampling jump around (a registration loop moves it every frame).
+            // Samples on a fixed lattice t = phase + n * step so that moving the camera slightly
+            // does not make the sampling jump around (a registration loop moves it every frame;
+            // the phase keeps the lattice put near an anchor, RenderOptions::sample_anchor_world_mm).
             // A ray enters the visible cells through a frontier block, and a point at camera
             // depth z lies at t = z / dir_z along it: no lattice point before that can show
             // anything, so the ray starts there (the same lattice, the same picture).
             // (0.05 mm earlier for rounding.)
             if (f.start_map) t0 = std::max(t0, f.start_map->start_z(px) / dir_cam.z() - 0.05f);
-            float t = std::ceil(t0 / step) * step;
+            const float phase = f.phase;
+            float t = phase + std::ceil((t0 - phase) / step) * step;
             const float lut_scale = 1.f;
             const bool grad_op = baked_.uses_gradient();
             while (t <= t1) {
@@ -416,7 +424,7 @@ private:
                         if (dir_index[a] > 1e-12f) texit = std::min(texit, t + (float((bi[a] + dist) << kBrickShift) - p[a]) * inv_dir[a]);
                         else if (dir_index[a] < -1e-12f) texit = std::min(texit, t + (float((bi[a] - dist + 1) << kBrickShift) - p[a]) * inv_dir[a]);
                     }
-                    const float tn = std::ceil(texit * inv_step + 1e-4f) * step;
+                    const float tn = phase + std::ceil((texit - phase) * inv_step + 1e-4f) * step;
                     t = std::max(tn, t + step);
                     continue;
                 }

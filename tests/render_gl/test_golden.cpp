@@ -210,6 +210,10 @@ TEST(GlGolden, BundledMriCrop) {
     surface.want_rgb = false;
     expect_same_pictures(v, preset_transfer_function("surface_white"), &mask, K, standard_view("left", c, 250), surface,
                          "MRI crop, brain mask, surface_white, surface only (registration)");
+    surface.sample_distance_mm = 2;
+    surface.sample_anchor_world_mm = std::array<double, 3>{c.x() - 20, c.y() + 7, c.z() + 3};  // a lattice phase off 0
+    expect_same_pictures(v, preset_transfer_function("surface_white"), &mask, K, standard_view("left", c, 250), surface,
+                         "MRI crop, brain mask, surface_white, surface only, 2 mm samples anchored (registration)");
     expect_same_pictures(v, preset_transfer_function("skin"), nullptr, K, standard_view("superior", c, 250),
                          RenderOptions{}, "MRI crop, skin");
 }

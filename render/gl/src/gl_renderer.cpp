@@ -92,7 +92,7 @@ struct Layer {
 struct RaycastProgram {
     Program prog;
     GLint R = -1, cam = -1, ifw = -1, dims = -1, box_lo = -1, box_hi = -1, weight = -1, grad_scale = -1, grad_n = -1,
-          grad_pts = -1, iso = -1, step = -1, ambient = -1, diffuse = -1, term = -1, cov = -1, shading = -1, has_mesh = -1, directional = -1, light_world = -1, surface_only = -1,
+          grad_pts = -1, iso = -1, step = -1, phase = -1, ambient = -1, diffuse = -1, term = -1, cov = -1, shading = -1, has_mesh = -1, directional = -1, light_world = -1, surface_only = -1,
           start_on = -1, start_origin = -1, start_inv_cell = -1, start_cells = -1;
 };
 
@@ -384,6 +384,15 @@ public:
             // The first-surface refinement follows the reference layer (layer 0) when drawn.
             glUniform1f(P.iso, n_drawn > 0 && drawn[0] == layers_[0].get() ? drawn[0]->iso_q : -1.f);
             glUniform1f(P.step, float(opt.sample_distance_mm));
+            {
+                // The lattice's offset as the CPU ray caster takes it (RenderOptions::sample_anchor_world_mm).
+                float phase = 0.f;
+                if (opt.sample_anchor_world_mm) {
+                    const auto& a = *opt.sample_anchor_world_mm;
+                    phase = float(std::fmod((Eigen::Vector3d(a[0], a[1], a[2]) - Tw.topRightCorner<3, 1>()).norm(), opt.sample_distance_mm));
+                }
+                glUniform1f(P.phase, phase);
+            }
             glUniform1f(P.ambient, float(opt.ambient));
             glUniform1f(P.diffuse, float(opt.diffuse));
             glUniform1f(P.term, float(opt.early_termination_alpha));
@@ -486,6 +495,7 @@ private:
         P.grad_pts = loc("u_grad_pts");
         P.iso = loc("u_iso");
         P.step = loc("u_step");
+        P.phase = loc("u_phase");
         P.ambient = loc("u_ambient");
         P.diffuse = loc("u_diffuse");
         P.term = loc("u_term");

@@ -19,6 +19,13 @@ namespace cf {
 
 struct RenderOptions {
     double sample_distance_mm = 1.0;     // step along the ray
+    /// Samples lie at t = phase + n * step along each ray (t: mm from the camera). Unset, the
+    /// phase is 0: the lattice moves with the camera, so a move along the viewing axis by part of
+    /// a step shifts every sample by it, and where a ray grazes the surface a 2 mm step finds or
+    /// misses it by turns (the similarity saw-toothed in depth). Set, the phase makes one sphere of
+    /// the lattice pass through this point (world, mm): near it the samples stay where they are
+    /// whatever the camera's depth. Registration anchors them at its pivot.
+    std::optional<std::array<double, 3>> sample_anchor_world_mm;
     double ambient = 0.2;                // Lambert shading from a headlight at the camera
     double diffuse = 0.8;
     bool shading = true;
