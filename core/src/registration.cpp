@@ -326,6 +326,7 @@ json to_json(const RegistrationParams& p) {
     j["roi_margin_fraction"] = p.roi_margin_fraction;
     j["outer_ray_stride"] = p.outer_ray_stride;
     j["max_fwhm_px"] = p.max_fwhm_px;
+    j["sample_anchor_at_pivot"] = p.sample_anchor_at_pivot;
     j["binning"] = p.binning;
     j["robust_range"] = p.robust_range;
     j["estimate_light"] = p.estimate_light;
@@ -386,6 +387,7 @@ RegistrationParams registration_params_from_json(const json& j, const std::strin
         p.roi_margin_fraction = j.value("roi_margin_fraction", p.roi_margin_fraction);
         p.outer_ray_stride = j.value("outer_ray_stride", p.outer_ray_stride);
         p.max_fwhm_px = j.value("max_fwhm_px", p.max_fwhm_px);
+        p.sample_anchor_at_pivot = j.value("sample_anchor_at_pivot", p.sample_anchor_at_pivot);
         p.binning = j.value("binning", p.binning);
         p.robust_range = j.value("robust_range", p.robust_range);
         p.estimate_light = j.value("estimate_light", p.estimate_light);
@@ -744,6 +746,11 @@ public:
         if (width_depth_mm_ <= 0) width_depth_mm_ = depth_mm;
     }
 
+    /// Where the sample lattice is anchored when RegistrationParams::sample_anchor_at_pivot.
+    void set_pivot(const Eigen::Vector3d& pivot_world) {
+        if (p_.sample_anchor_at_pivot) ropt_.sample_anchor_world_mm = std::array<double, 3>{pivot_world.x(), pivot_world.y(), pivot_world.z()};
+    }
+
     /// The width a stage renders at: its render_width_px, or narrower where its blur would span
     /// more than max_fwhm_px there (rounded up to a multiple of 8, at least 64 px).
     int width_for(const StageParams& st) const {
@@ -956,6 +963,7 @@ Registration::PoseScore Registration::score(const PhotoInput& in, const Pose& T,
     const Eigen::Vector3d pivot_world = scorer.find_pivot_world(T_reference);
     const Eigen::Vector3d pivot_cam = T_reference.topLeftCorner<3, 3>() * pivot_world + T_reference.topRightCorner<3, 1>();
     scorer.set_depth(pivot_cam.z());
+    scorer.set_pivot(pivot_world);
     const LandmarkPrior prior(in, params_);
     PoseScore s;
     s.similarity = scorer.similarity(T, stage);
@@ -996,6 +1004,7 @@ SimilaritySweep Registration::sweep(const PhotoInput& in, const Pose& T_center, 
     out.pivot_world_mm = scorer.find_pivot_world(T_center);
     const Eigen::Vector3d pivot_cam = T_center.topLeftCorner<3, 3>() * out.pivot_world_mm + T_center.topRightCorner<3, 1>();
     scorer.set_depth(pivot_cam.z());
+    scorer.set_pivot(out.pivot_world_mm);
     steps = std::max(steps, 3);
     for (int p = 0; p < 6; ++p)
         sweep_axis(scorer, T_center, pivot_cam, stage, p, p < 3 ? range_deg : range_mm, steps, out.offsets[size_t(p)],
@@ -1048,6 +1057,7 @@ RegistrationResult Registration::run(const PhotoInput& in, const Progress* progr
     res.pivot_world_mm = scorer.find_pivot_world(T0);
     const Eigen::Vector3d pivot_cam = T0.topLeftCorner<3, 3>() * res.pivot_world_mm + T0.topRightCorner<3, 1>();
     scorer.set_depth(pivot_cam.z());
+    scorer.set_pivot(res.pivot_world_mm);
     std::vector<PoseParams> starts = params_.starts;
     // Each other fit as a move about the pivot from the best one; from the landmarks alone the best
     // fit is T0, and the move takes T0 to that fit exactly.

@@ -671,6 +671,36 @@ TEST(Registration, MaxFwhmPxRendersAStageNarrowerWhereItsBlurWouldSpanMorePixels
     }
 }
 
+TEST(Registration, SampleAnchorAtPivotSmoothsTheSimilarityAlongDepth) {
+    // The similarity across the truth in depth (tz, 0.5 mm steps) at the final stages' blur and
+    // width: with the ray caster's 2 mm sample lattice on the camera it saw-tooths with the
+    // lattice's period; anchored at the pivot it follows the picture alone. The measure: the rms
+    // of the curve's second difference.
+    const Fixture& f = fixture();
+    ASSERT_TRUE(f.c.spec.truth.has_value());
+    RegistrationParams riding = small_params();
+    riding.sample_anchor_at_pivot = false;
+    RegistrationParams anchored = riding;
+    anchored.sample_anchor_at_pivot = true;
+    StageParams stage = riding.final_stages.front();
+    stage.fwhm_mm = 2;
+    stage.render_width_px = 375;
+    auto roughness = [&](const RegistrationParams& p) {
+        Registration reg(f.c.volume, f.c.mask, p);
+        const SimilaritySweep sw = reg.sweep(f.c.photo, f.c.spec.truth->T_camera_from_world, stage, 5, 5, 21);
+        const std::vector<double>& s = sw.similarity[5];  // tz
+        double ss = 0;
+        for (size_t i = 1; i + 1 < s.size(); ++i) ss += std::pow(s[i + 1] - 2 * s[i] + s[i - 1], 2);
+        return std::sqrt(ss / double(s.size() - 2));
+    };
+    const double r_riding = roughness(riding), r_anchored = roughness(anchored);
+    std::printf("similarity along depth, second difference rms: lattice on the camera %.2e, at the pivot %.2e\n", r_riding,
+                r_anchored);
+    EXPECT_LT(r_anchored, 0.5 * r_riding);
+    EXPECT_TRUE(registration_params_from_json(to_json(anchored), "params").sample_anchor_at_pivot);
+    EXPECT_FALSE(registration_params_from_json(to_json(riding), "params").sample_anchor_at_pivot);
+}
+
 TEST(Registration, APoseLookingAwayFromTheBrainIsAClearInputError) {
     const Fixture& f = fixture();
     Registration reg(f.c.volume, f.c.mask, small_params());

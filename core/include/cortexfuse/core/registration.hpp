@@ -156,6 +156,13 @@ struct RegistrationParams {
     /// extra rays add. Fixed once a run from the initial pivot depth, so every finalist is scored
     /// on the same grid. 0: every stage at its render_width_px.
     double max_fwhm_px = 0;
+    /// Anchor the ray caster's sample lattice at the pivot (RenderOptions::sample_anchor_world_mm)
+    /// instead of at the camera: with the lattice riding on the camera, a step along the viewing
+    /// axis by part of the sample distance moves every sample near the surface by it, and the
+    /// similarity saw-toothed in depth with the sample distance's period. false: the camera's.
+    /// Off by default: smoother in depth, but no nearer the truth over 520 paired runs
+    /// (docs/registration.md, "The sample lattice anchored at the pivot"); for diagnosis.
+    bool sample_anchor_at_pivot = false;
     /// The seed's subspaces: starting offsets (rx, ry, rz deg, tx, ty, tz mm) about the pivot,
     /// each searched independently through `search_stages`.
     std::vector<PoseParams> starts = {{0, 0, 0, 0, 0, 0}};
