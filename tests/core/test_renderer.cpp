@@ -81,11 +81,15 @@ TransferFunction step_tf() {
     return tf;
 }
 
-Intrinsics camera() {
+/// A pinhole camera, the principal point at the image's centre: by default 121 x 121, so that
+/// pixel (60, 60) looks along the optical axis.
+Intrinsics camera(int width = 121, int height = 121, double focal_px = 300) {
     Intrinsics K;
-    K.width = K.height = 121;
-    K.fx = K.fy = 300;
-    K.cx = K.cy = 60;  // pixel (60, 60) looks along the optical axis
+    K.width = width;
+    K.height = height;
+    K.fx = K.fy = focal_px;
+    K.cx = 0.5 * (width - 1);
+    K.cy = 0.5 * (height - 1);
     return K;
 }
 
@@ -616,12 +620,7 @@ TEST(CpuRenderer, ASampleAnchorKeepsTheSurfaceSteadyAsTheCameraMovesAlongItsAxis
     LabelVolume mask = load_mask(bm);
     if (!mask.geom.same_grid(v.geom)) mask = resample_nearest(mask, v.geom);
     auto r = make_cpu_renderer(v, preset_transfer_function("surface_white"), &mask);
-    Intrinsics K;
-    K.width = 160;
-    K.height = 120;
-    K.fx = K.fy = 700;
-    K.cx = 80;
-    K.cy = 60;
+    const Intrinsics K = camera(160, 120, 700);
     const Eigen::Vector3d target = v.geom.center_world_mm() + Eigen::Vector3d(-55, 0, 35);  // left, up: cortex
     const Eigen::Vector3d axis = Eigen::Vector3d(-1, 0.3, 0.8).normalized();                 // oblique: grazing rays
     // Share of the rays (hitting in both frames) whose depth less the camera's move changes by
@@ -661,7 +660,7 @@ TEST(RayStartMap, SkippingGroupsOfBricksGivesTheMapOfEveryBrick) {
     // from inside its box (bricks behind the camera: no map). The grouped, skipping add() must
     // give exactly the map of every brick projected, and so must any order of the bricks.
     const std::array<int, 3> n{40, 36, 32};
-    std::vector<uint8_t> visible(size_t(n[0]) * n[1] * n[2], 0);
+    std::vector<uint8_t> visible(static_cast<size_t>(n[0]) * n[1] * n[2], 0);  // (size_t(n[0]) would parse as a declarator first)
     std::mt19937 rng(7);
     std::uniform_real_distribution<double> U(0, 1);
     for (int z = 0; z < n[2]; ++z)
