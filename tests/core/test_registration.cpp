@@ -658,7 +658,9 @@ TEST(Registration, MaxFwhmPxRendersAStageNarrowerWhereItsBlurWouldSpanMorePixels
         // One stage, one width, whichever start or finalist ran it.
         const std::string key = s.name + "/" + std::to_string(s.params.fwhm_mm) + "/" + std::to_string(s.params.render_width_px);
         auto [it, fresh] = width_of.emplace(key, s.render_width_used_px);
-        if (!fresh) EXPECT_EQ(it->second, s.render_width_used_px) << key;
+        if (!fresh) {
+            EXPECT_EQ(it->second, s.render_width_used_px) << key;
+        }
     }
     EXPECT_GT(narrower, 0) << "max_fwhm_px 2 left every stage at its width";
     const nlohmann::json j = to_json(narrow);
@@ -672,8 +674,8 @@ TEST(Registration, MaxFwhmPxRendersAStageNarrowerWhereItsBlurWouldSpanMorePixels
 }
 
 TEST(Registration, SampleAnchorAtPivotSmoothsTheSimilarityAlongDepth) {
-    // The similarity across the truth in depth (tz, 0.5 mm steps) at the final stages' blur and
-    // width: with the ray caster's 2 mm sample lattice on the camera it saw-tooths with the
+    // The similarity across the truth in depth (tz, 0.5 mm steps) at the final stages' blur,
+    // 250 px wide: with the ray caster's 2 mm sample lattice on the camera it saw-tooths with the
     // lattice's period; anchored at the pivot it follows the picture alone. The measure: the rms
     // of the curve's second difference.
     const Fixture& f = fixture();
@@ -684,10 +686,10 @@ TEST(Registration, SampleAnchorAtPivotSmoothsTheSimilarityAlongDepth) {
     anchored.sample_anchor_at_pivot = true;
     StageParams stage = riding.final_stages.front();
     stage.fwhm_mm = 2;
-    stage.render_width_px = 375;
+    stage.render_width_px = 250;
     auto roughness = [&](const RegistrationParams& p) {
         Registration reg(f.c.volume, f.c.mask, p);
-        const SimilaritySweep sw = reg.sweep(f.c.photo, f.c.spec.truth->T_camera_from_world, stage, 5, 5, 21);
+        const SimilaritySweep sw = reg.sweep(f.c.photo, f.c.spec.truth->T_camera_from_world, stage, 3.5, 3.5, 15);
         const std::vector<double>& s = sw.similarity[5];  // tz
         double ss = 0;
         for (size_t i = 1; i + 1 < s.size(); ++i) ss += std::pow(s[i + 1] - 2 * s[i] + s[i - 1], 2);
