@@ -44,6 +44,12 @@ constexpr int kBlock = kBrick / 2;
 
 }  // namespace
 
+double sample_lattice_phase_mm(const RenderOptions& opt, const Eigen::Vector3d& camera_world_mm) {
+    if (!opt.sample_anchor_world_mm) return 0.0;
+    const auto& a = *opt.sample_anchor_world_mm;
+    return std::fmod((Eigen::Vector3d(a[0], a[1], a[2]) - camera_world_mm).norm(), opt.sample_distance_mm);
+}
+
 // Separable: exact 1D transforms along x, then y, then z, each taking the max with the offset
 // along that axis. Grids are ~32^3, so O(n^2) lines are fine.
 std::vector<uint8_t> brick_chebyshev_distance(const std::vector<uint8_t>& visible, const std::array<int, 3>& n, int cap) {
@@ -284,11 +290,7 @@ public:
                              .cast<float>())
                             .normalized();
         f.cam_world = Tw.topRightCorner<3, 1>().cast<float>();
-        if (opt.sample_anchor_world_mm) {
-            const auto& a = *opt.sample_anchor_world_mm;
-            const double dist = (Eigen::Vector3d(a[0], a[1], a[2]) - Tw.topRightCorner<3, 1>()).norm();
-            f.phase = float(std::fmod(dist, opt.sample_distance_mm));
-        }
+        f.phase = float(sample_lattice_phase_mm(opt, Tw.topRightCorner<3, 1>()));
         const bool iso_skip = opt.surface_only && !iso_cell_bits_.empty();
         f.brick_distance = iso_skip ? iso_brick_distance_.data() : brick_distance_.data();
         f.cell_bits = iso_skip ? iso_cell_bits_.data() : cell_bits_.data();

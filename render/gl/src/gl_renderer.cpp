@@ -384,15 +384,7 @@ public:
             // The first-surface refinement follows the reference layer (layer 0) when drawn.
             glUniform1f(P.iso, n_drawn > 0 && drawn[0] == layers_[0].get() ? drawn[0]->iso_q : -1.f);
             glUniform1f(P.step, float(opt.sample_distance_mm));
-            {
-                // The lattice's offset as the CPU ray caster takes it (RenderOptions::sample_anchor_world_mm).
-                float phase = 0.f;
-                if (opt.sample_anchor_world_mm) {
-                    const auto& a = *opt.sample_anchor_world_mm;
-                    phase = float(std::fmod((Eigen::Vector3d(a[0], a[1], a[2]) - Tw.topRightCorner<3, 1>()).norm(), opt.sample_distance_mm));
-                }
-                glUniform1f(P.phase, phase);
-            }
+            glUniform1f(P.phase, float(sample_lattice_phase_mm(opt, Tw.topRightCorner<3, 1>())));
             glUniform1f(P.ambient, float(opt.ambient));
             glUniform1f(P.diffuse, float(opt.diffuse));
             glUniform1f(P.term, float(opt.early_termination_alpha));

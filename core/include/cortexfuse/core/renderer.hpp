@@ -103,6 +103,11 @@ std::unique_ptr<Renderer> make_cpu_renderer(const Volume& volume, const Transfer
 constexpr size_t kMaxRenderCopyVoxels = size_t(48) << 20;
 std::optional<Volume> masked_render_copy(const Volume& volume, const LabelVolume* mask, const std::array<double, 2>& range);
 
+/// The sample lattice's phase in mm for a camera at `camera_world_mm`: 0 without
+/// RenderOptions::sample_anchor_world_mm, else the anchor's distance from the camera modulo the
+/// sample distance. Shared by the ray casters (CPU and GLSL).
+double sample_lattice_phase_mm(const RenderOptions& opt, const Eigen::Vector3d& camera_world_mm);
+
 /// Per block of `block`^3 voxels of the x-fastest grid `q` (dims), the least and greatest value
 /// over the block and a one-voxel apron (the reach of trilinear interpolation); `n_blocks` gets
 /// the grid of blocks (x fastest). Shared by the ray casters (CPU and GLSL).
