@@ -736,19 +736,20 @@ public:
         return Eigen::Vector3d(ropt_.light_direction_camera[0], ropt_.light_direction_camera[1], ropt_.light_direction_camera[2]).normalized();
     }
 
-    /// The depth at which blur FWHM in mm is converted to pixels.
-    void set_depth(double depth_mm) {
+    /// Takes `pivot_world` as seen from pose T as the run's pivot: its camera depth is where blur
+    /// FWHM in mm is converted to pixels, and with RegistrationParams::sample_anchor_at_pivot the
+    /// sample lattice is anchored there. Returns the pivot in T's camera frame.
+    Eigen::Vector3d set_pivot(const Eigen::Vector3d& pivot_world, const Pose& T) {
+        const Eigen::Vector3d pivot_cam = T.topLeftCorner<3, 3>() * pivot_world + T.topRightCorner<3, 1>();
+        const double depth_mm = pivot_cam.z();
         // A pose looking away from the brain puts the pivot behind the camera; blur widths
         // (mm -> px at this depth) would be negative.
         if (!(depth_mm > 1.0))
             throw InputError("initial pose", "the brain is behind the camera (pivot depth " + std::to_string(depth_mm) + " mm)");
         depth_mm_ = depth_mm;
         if (width_depth_mm_ <= 0) width_depth_mm_ = depth_mm;
-    }
-
-    /// Where the sample lattice is anchored when RegistrationParams::sample_anchor_at_pivot.
-    void set_pivot(const Eigen::Vector3d& pivot_world) {
         if (p_.sample_anchor_at_pivot) ropt_.sample_anchor_world_mm = std::array<double, 3>{pivot_world.x(), pivot_world.y(), pivot_world.z()};
+        return pivot_cam;
     }
 
     /// The width a stage renders at: its render_width_px, or narrower where its blur would span
@@ -960,10 +961,7 @@ Registration::PoseScore Registration::score(const PhotoInput& in, const Pose& T,
     Scorer scorer(in, params_, *renderer_);
     if (light && std::abs((*light).z()) > 1e-9)
         scorer.set_light(std::array<double, 2>{-(*light).x() / (*light).z(), -(*light).y() / (*light).z()});
-    const Eigen::Vector3d pivot_world = scorer.find_pivot_world(T_reference);
-    const Eigen::Vector3d pivot_cam = T_reference.topLeftCorner<3, 3>() * pivot_world + T_reference.topRightCorner<3, 1>();
-    scorer.set_depth(pivot_cam.z());
-    scorer.set_pivot(pivot_world);
+    scorer.set_pivot(scorer.find_pivot_world(T_reference), T_reference);
     const LandmarkPrior prior(in, params_);
     PoseScore s;
     s.similarity = scorer.similarity(T, stage);
@@ -1002,9 +1000,7 @@ SimilaritySweep Registration::sweep(const PhotoInput& in, const Pose& T_center, 
     Scorer scorer(in, params_, *renderer_);
     SimilaritySweep out;
     out.pivot_world_mm = scorer.find_pivot_world(T_center);
-    const Eigen::Vector3d pivot_cam = T_center.topLeftCorner<3, 3>() * out.pivot_world_mm + T_center.topRightCorner<3, 1>();
-    scorer.set_depth(pivot_cam.z());
-    scorer.set_pivot(out.pivot_world_mm);
+    const Eigen::Vector3d pivot_cam = scorer.set_pivot(out.pivot_world_mm, T_center);
     steps = std::max(steps, 3);
     for (int p = 0; p < 6; ++p)
         sweep_axis(scorer, T_center, pivot_cam, stage, p, p < 3 ? range_deg : range_mm, steps, out.offsets[size_t(p)],
@@ -1055,9 +1051,7 @@ RegistrationResult Registration::run(const PhotoInput& in, const Progress* progr
 
     Scorer scorer(in, params_, *renderer_);
     res.pivot_world_mm = scorer.find_pivot_world(T0);
-    const Eigen::Vector3d pivot_cam = T0.topLeftCorner<3, 3>() * res.pivot_world_mm + T0.topRightCorner<3, 1>();
-    scorer.set_depth(pivot_cam.z());
-    scorer.set_pivot(res.pivot_world_mm);
+    const Eigen::Vector3d pivot_cam = scorer.set_pivot(res.pivot_world_mm, T0);
     std::vector<PoseParams> starts = params_.starts;
     // Each other fit as a move about the pivot from the best one; from the landmarks alone the best
     // fit is T0, and the move takes T0 to that fit exactly.
