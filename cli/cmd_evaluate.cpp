@@ -236,8 +236,9 @@ void add_evaluate(CLI::App& app) {
                     const Pose T_ref = in.initial_pose ? *in.initial_pose : r.initial_T_camera_from_world;
                     const bool lit = params.estimate_light;
                     const auto light = lit ? std::optional<Eigen::Vector3d>(r.light_direction_camera) : std::nullopt;
-                    const auto s_truth = engine->score(in, truth.T_camera_from_world, T_ref, last, light);
-                    const auto s_final = engine->score(in, r.T_camera_from_world, T_ref, last, light);
+                    const auto lamp = lit ? r.light_position_camera_mm : std::nullopt;
+                    const auto s_truth = engine->score(in, truth.T_camera_from_world, T_ref, last, light, lamp);
+                    const auto s_final = engine->score(in, r.T_camera_from_world, T_ref, last, light, lamp);
                     const PoseErrors e0 = pose_errors(truth, K, T_init, mesh);
                     const PoseErrors e1 = pose_errors(truth, K, r.T_camera_from_world, mesh);
                     init.mre.push_back(e0.mre_mm);

@@ -55,9 +55,10 @@ uniform float u_diffuse;
 uniform float u_term;
 uniform float u_cov;
 uniform bool u_shading;
-uniform bool u_directional;                 // distant light from u_light_world, else a headlight
+uniform int u_light;                        // core's Light: 0 headlight, 1 distant (u_light_world), 2 point (u_light_pos_world)
 uniform bool u_surface_only;                // layer 0: only its first surface crossing, opaque (RenderOptions::surface_only)
 uniform vec3 u_light_world;
+uniform vec3 u_light_pos_world;
 uniform bool u_has_mesh;
 // Where rays may start (core's RayStartMap): the nearest camera depth of a frontier brick per
 // cell of a grid over normalised image coordinates (x/z, y/z).
@@ -252,9 +253,16 @@ void main() {
                         const vec3 gw = transpose(mat3(u_index_from_world[l])) * gi;
                         const float gn = length(gw);
                         if (grad_op) a *= gradient_factor(l, gn * u_grad_scale[l]);
-                        // Two-sided Lambert, |cos|, for the headlight and the distant light
-                        // alike (raycast_cpu.cpp: why).
-                        if (u_shading) shade = u_ambient + u_diffuse * (gn > 1e-6 ? abs(dot(gw, u_directional ? u_light_world : dir_world)) / gn : 0.0);
+                        // Two-sided Lambert, |cos|, for every kind of light (raycast_cpu.cpp: why).
+                        if (u_shading) {
+                            vec3 light = u_light == 1 ? u_light_world : dir_world;
+                            if (u_light == 2) {
+                                const vec3 to_lamp = u_light_pos_world - (u_cam_world + ((l == 0 && have_ref) ? t_ref : t) * dir_world);
+                                const float dl = length(to_lamp);
+                                if (dl > 1e-3) light = to_lamp / dl;
+                            }
+                            shade = u_ambient + u_diffuse * (gn > 1e-6 ? abs(dot(gw, light)) / gn : 0.0);
+                        }
                     }
                     const float a_step = (l == 0 && u_surface_only) || a >= 1.0 ? 1.0 : 1.0 - pow(1.0 - a, step);
                     c_sum += a_step * e.rgb * shade;

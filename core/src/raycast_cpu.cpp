@@ -284,12 +284,16 @@ public:
         f.cam_index = (index_from_world_ * Tw.topRightCorner<3, 1>().cast<float>().homogeneous()).head<3>();
         f.cam_z_axis_world = T.block<1, 3>(2, 0).cast<float>();  // row 2 of R: camera z in world
         f.cam_t_z = float(T(2, 3));
-        f.directional_light = opt.directional_light;
+        f.light = opt.light;
         f.light_world = (f.R_world_from_camera *
                          Eigen::Vector3d(opt.light_direction_camera[0], opt.light_direction_camera[1], opt.light_direction_camera[2])
                              .cast<float>())
                             .normalized();
         f.cam_world = Tw.topRightCorner<3, 1>().cast<float>();
+        f.light_pos_world = (Tw * Eigen::Vector4d(opt.light_position_camera_mm[0], opt.light_position_camera_mm[1],
+                                                  opt.light_position_camera_mm[2], 1.0))
+                                .head<3>()
+                                .cast<float>();
         f.phase = float(sample_lattice_phase_mm(opt, Tw.topRightCorner<3, 1>()));
         const bool iso_skip = opt.surface_only && !iso_cell_bits_.empty();
         f.brick_distance = iso_skip ? iso_brick_distance_.data() : brick_distance_.data();
@@ -332,8 +336,9 @@ private:
         Eigen::Vector3f cam_world;
         Eigen::Vector3f cam_z_axis_world;
         float cam_t_z;
-        bool directional_light;
-        Eigen::Vector3f light_world;  // unit, scene towards the light (directional only)
+        Light light;
+        Eigen::Vector3f light_world;      // unit, scene towards the light (Light::distant)
+        Eigen::Vector3f light_pos_world;  // the lamp, world mm (Light::point)
         const uint8_t* brick_distance;  // the empty-space maps this frame steps with (borrowed)
         const uint64_t* cell_bits;
         const RayStartMap* start_map;  // where rays may start (borrowed); null: at the box
@@ -486,7 +491,13 @@ private:
                             // too: a one-sided max(0, n.L) with the normal turned to the camera
                             // lost on the wide capture test and gained nothing on the seed
                             // protocol (2026-11-23, docs/registration.md), so it stays two-sided.
-                            const Eigen::Vector3f& light = f.directional_light ? f.light_world : dir_world;
+                            Eigen::Vector3f light = f.light == Light::distant ? f.light_world : dir_world;
+                            if (f.light == Light::point) {
+                                // From the sample to the lamp; at the lamp itself, the ray's.
+                                const Eigen::Vector3f to_lamp = f.light_pos_world - (f.cam_world + t_at * dir_world);
+                                const float d = to_lamp.norm();
+                                if (d > 1e-3f) light = to_lamp / d;
+                            }
                             const float lambert = gn > 1e-6f ? std::abs(gw.dot(light)) / gn : 0.f;
                             shade = float(opt.ambient) + float(opt.diffuse) * lambert;
                         }

@@ -226,6 +226,7 @@ void RegistrationParams::validate(const std::string& ctx) const {
     if (!(sulcal_hull_fwhm_mm >= 1 && sulcal_hull_fwhm_mm <= 50)) bad("sulcal_hull_fwhm_mm must be 1..50");
     if (!(light_max_offset >= 0 && light_max_offset <= 2)) bad("light_max_offset must be 0..2");
     if (light_grid < 1 || light_grid > 15) bad("light_grid must be 1..15");
+    if (light_model != "distant" && light_model != "point") bad("light_model must be \"distant\" or \"point\"");
     if (light_rounds < 1 || light_rounds > 5) bad("light_rounds must be 1..5");
     if (light_width_px != 0 && (light_width_px < 32 || light_width_px > 4000)) bad("light_width_px must be 0 or 32..4000");
     if (search_keep < 0) bad("search_keep must be >= 0");
@@ -332,6 +333,7 @@ json to_json(const RegistrationParams& p) {
     j["estimate_light"] = p.estimate_light;
     j["light_max_offset"] = p.light_max_offset;
     j["light_grid"] = p.light_grid;
+    j["light_model"] = p.light_model;
     j["light_rounds"] = p.light_rounds;
     j["light_width_px"] = p.light_width_px;
     j["depth_weight"] = p.depth_weight;
@@ -393,6 +395,7 @@ RegistrationParams registration_params_from_json(const json& j, const std::strin
         p.estimate_light = j.value("estimate_light", p.estimate_light);
         p.light_max_offset = j.value("light_max_offset", p.light_max_offset);
         p.light_grid = j.value("light_grid", p.light_grid);
+        p.light_model = j.value("light_model", p.light_model);
         p.light_rounds = j.value("light_rounds", p.light_rounds);
         p.light_width_px = j.value("light_width_px", p.light_width_px);
         p.search_keep = j.value("search_keep", p.search_keep);
@@ -443,6 +446,8 @@ json result_to_json(const RegistrationResult& r) {
     j["seconds"] = r.seconds;
     j["pivot_world_mm"] = {r.pivot_world_mm.x(), r.pivot_world_mm.y(), r.pivot_world_mm.z()};
     j["light_direction_camera"] = {r.light_direction_camera.x(), r.light_direction_camera.y(), r.light_direction_camera.z()};
+    if (r.light_position_camera_mm)
+        j["light_position_camera_mm"] = {r.light_position_camera_mm->x(), r.light_position_camera_mm->y(), r.light_position_camera_mm->z()};
     if (std::isnan(r.peak_prominence)) j["peak_prominence"] = nullptr;
     else j["peak_prominence"] = r.peak_prominence;
     j["landmarks_weighed_up"] = r.landmarks_weighed_up;
@@ -722,18 +727,43 @@ public:
         return Tinv.topLeftCorner<3, 3>() * pivot_cam + Tinv.topRightCorner<3, 1>();
     }
 
-    /// Light offsets (x, y): a distant light from camera-frame direction (x, y, -1); nullopt: headlight.
-    void set_light(std::optional<std::array<double, 2>> xy) {
-        ropt_.directional_light = xy.has_value();
-        if (xy) ropt_.light_direction_camera = {(*xy)[0], (*xy)[1], -1.0};
+    /// The light the renderings use: its kind and, for a distant light, its direction, for a
+    /// point light, its position (camera frame, mm). What set_light() restores.
+    struct LightSetting {
+        Light kind = Light::headlight;
+        std::array<double, 3> v{0, 0, -1};
+    };
+    LightSetting light() const {
+        if (ropt_.light == Light::point) return {Light::point, ropt_.light_position_camera_mm};
+        return {ropt_.light, ropt_.light_direction_camera};
     }
-    std::optional<std::array<double, 2>> light() const {
-        if (!ropt_.directional_light) return std::nullopt;
-        return std::array<double, 2>{ropt_.light_direction_camera[0], ropt_.light_direction_camera[1]};
+    void set_light(const LightSetting& l) {
+        ropt_.light = l.kind;
+        if (l.kind == Light::point) ropt_.light_position_camera_mm = l.v;
+        else ropt_.light_direction_camera = l.kind == Light::distant ? l.v : std::array<double, 3>{0, 0, -1};
     }
+    /// The light grid's point (x, y): the light leans by (x, y) per unit depth at the pivot. A
+    /// distant light from camera-frame direction (x, y, -1); with light_model "point", a lamp in
+    /// the lens plane at (x, y, 0) times the pivot's depth, so (0, 0) is the headlight and the
+    /// lamp's direction at the pivot's ray leans as the distant light's does.
+    void set_light_offsets(std::array<double, 2> xy) {
+        if (p_.light_model == "point")
+            set_light({Light::point, {xy[0] * depth_mm_, xy[1] * depth_mm_, 0.0}});
+        else
+            set_light({Light::distant, {xy[0], xy[1], -1.0}});
+    }
+    /// Towards the light from the pivot (camera frame, unit): (0, 0, -1) with a headlight on the axis.
     Eigen::Vector3d light_direction() const {
-        if (!ropt_.directional_light) return {0, 0, -1};
-        return Eigen::Vector3d(ropt_.light_direction_camera[0], ropt_.light_direction_camera[1], ropt_.light_direction_camera[2]).normalized();
+        const auto l = light();
+        if (l.kind == Light::distant) return Eigen::Vector3d(l.v[0], l.v[1], l.v[2]).normalized();
+        const Eigen::Vector3d lamp = l.kind == Light::point ? Eigen::Vector3d(l.v[0], l.v[1], l.v[2]) : Eigen::Vector3d::Zero();
+        const Eigen::Vector3d to_lamp = lamp - pivot_cam_;
+        return to_lamp.norm() > 1e-9 ? Eigen::Vector3d(to_lamp.normalized()) : Eigen::Vector3d(0, 0, -1);
+    }
+    /// The lamp's position (camera frame, mm) with a point light; nullopt otherwise.
+    std::optional<Eigen::Vector3d> light_position_mm() const {
+        if (ropt_.light != Light::point) return std::nullopt;
+        return Eigen::Vector3d(ropt_.light_position_camera_mm[0], ropt_.light_position_camera_mm[1], ropt_.light_position_camera_mm[2]);
     }
 
     /// Takes `pivot_world` as seen from pose T as the run's pivot: its camera depth is where blur
@@ -747,6 +777,7 @@ public:
         if (!(depth_mm > 1.0))
             throw InputError("initial pose", "the brain is behind the camera (pivot depth " + std::to_string(depth_mm) + " mm)");
         depth_mm_ = depth_mm;
+        pivot_cam_ = pivot_cam;
         if (width_depth_mm_ <= 0) width_depth_mm_ = depth_mm;
         if (p_.sample_anchor_at_pivot) ropt_.sample_anchor_world_mm = std::array<double, 3>{pivot_world.x(), pivot_world.y(), pivot_world.z()};
         return pivot_cam;
@@ -919,6 +950,7 @@ private:
     cv::Mat rendered_blur_, lowpass_, mixed_, depth_, hull_, darkened_;
     std::vector<float> vals_;
     double depth_mm_ = 300;
+    Eigen::Vector3d pivot_cam_{0, 0, 300};  // the pivot in the camera frame at set_pivot()
     double width_depth_mm_ = 0;  // the first depth set: the stages' widths follow it (width_for)
 };
 
@@ -957,10 +989,13 @@ private:
 }  // namespace
 
 Registration::PoseScore Registration::score(const PhotoInput& in, const Pose& T, const Pose& T_reference,
-                                            const StageParams& stage, std::optional<Eigen::Vector3d> light) {
+                                            const StageParams& stage, std::optional<Eigen::Vector3d> light,
+                                            std::optional<Eigen::Vector3d> light_position_camera_mm) {
     Scorer scorer(in, params_, *renderer_);
-    if (light && std::abs((*light).z()) > 1e-9)
-        scorer.set_light(std::array<double, 2>{-(*light).x() / (*light).z(), -(*light).y() / (*light).z()});
+    if (light_position_camera_mm)
+        scorer.set_light({Light::point, {light_position_camera_mm->x(), light_position_camera_mm->y(), light_position_camera_mm->z()}});
+    else if (light)
+        scorer.set_light({Light::distant, {light->x(), light->y(), light->z()}});
     scorer.set_pivot(scorer.find_pivot_world(T_reference), T_reference);
     const LandmarkPrior prior(in, params_);
     PoseScore s;
@@ -1198,7 +1233,7 @@ RegistrationResult Registration::run(const PhotoInput& in, const Progress* progr
                 for (int j = 0; j < n; ++j) {
                     const double gx = n > 1 ? centre[0] - half + 2 * half * i / (n - 1) : centre[0];
                     const double gy = n > 1 ? centre[1] - half + 2 * half * j / (n - 1) : centre[1];
-                    scorer.set_light(std::array<double, 2>{gx, gy});
+                    scorer.set_light_offsets({gx, gy});
                     const double s = scorer.similarity(T, st);
                     ++evals_done;
                     ++renders;
@@ -1210,7 +1245,7 @@ RegistrationResult Registration::run(const PhotoInput& in, const Progress* progr
         try_grid({0, 0}, m, params_.light_grid);
         const double spacing = params_.light_grid > 1 ? 2 * m / (params_.light_grid - 1) : m;
         try_grid(best_xy, spacing / 2, 3);
-        scorer.set_light(best_xy);
+        scorer.set_light_offsets(best_xy);
         report("light", candidate, st, best_s, -best_s, renders, t0, T);
     };
     // Subspace searches: each start runs the multi-scale stages on its own.
@@ -1296,7 +1331,7 @@ RegistrationResult Registration::run(const PhotoInput& in, const Progress* progr
             if (params_.estimate_light && !own_light) estimate_light(round == 0 ? candidates.front().x : best.x, 0);
             if (round > 0) candidates = {best};  // later rounds refine the winner only
             best.cost = 1e300;
-            std::optional<std::array<double, 2>> best_light;
+            Scorer::LightSetting best_light;
             for (size_t c = 0; c < candidates.size(); ++c) {
                 PoseParams x = candidates[c].x;
                 if (own_light) estimate_light(x, int(c));
@@ -1325,7 +1360,7 @@ RegistrationResult Registration::run(const PhotoInput& in, const Progress* progr
         const StageParams& st = params_.final_stages.front();
         const auto light = scorer.light();
         // A headlight, as the threshold was measured (cortexfuse landscape, twenty-first session).
-        scorer.set_light(std::nullopt);
+        scorer.set_light({});
         const Pose T_best = apply_params(T0, pivot_cam, best.x);
         const Eigen::Vector3d pivot_best = T_best.topLeftCorner<3, 3>() * res.pivot_world_mm + T_best.topRightCorner<3, 1>();
         const int stage_index = int(res.stages.size());
@@ -1364,6 +1399,7 @@ RegistrationResult Registration::run(const PhotoInput& in, const Progress* progr
 
     res.T_camera_from_world = apply_params(T0, pivot_cam, best.x);
     res.light_direction_camera = scorer.light_direction();
+    res.light_position_camera_mm = scorer.light_position_mm();
     // Report the similarity at the final pose at the last stage's level.
     {
         const StageParams& last = params_.last_stage();

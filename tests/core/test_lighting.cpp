@@ -1,4 +1,4 @@
-// The CPU ray caster's distant light (RenderOptions::directional_light), which registration
+// The CPU ray caster's distant light (RenderOptions::light, Light::distant), which registration
 // uses to match a photo lit from aside: along the lens axis it looks like the headlight, from
 // the camera's +x side it brightens the sphere's +x half.
 #include <gtest/gtest.h>
@@ -68,7 +68,7 @@ TEST(Lighting, DistantLightAlongTheAxisLooksLikeTheHeadlightAndFromAsideShadesTh
     opt.want_rgb = false;
     RenderImage head, axis, aside;
     r->render(K, T, opt, head);
-    opt.directional_light = true;
+    opt.light = Light::distant;
     opt.light_direction_camera = {0, 0, -1};
     r->render(K, T, opt, axis);
     opt.light_direction_camera = {1, 0, -1};  // 45 deg towards the camera's +x (image right)
@@ -83,4 +83,38 @@ TEST(Lighting, DistantLightAlongTheAxisLooksLikeTheHeadlightAndFromAsideShadesTh
     // halves are alike.
     EXPECT_GT(mean_grey(aside, false), mean_grey(aside, true) + 0.05);
     EXPECT_NEAR(mean_grey(head, false), mean_grey(head, true), 0.02);
+}
+
+TEST(Lighting, APointLightAtTheLensIsTheHeadlightAFarOneADistantLightAndOneAsideShadesThatSide) {
+    const Volume v = ball();
+    auto r = make_cpu_renderer(v, preset_transfer_function("surface_white"), nullptr);
+    const Intrinsics K = camera();
+    const Pose T = facing(v.geom.center_world_mm());
+    RenderOptions opt;
+    opt.want_rgb = false;
+    RenderImage head, at_lens, far, distant, aside;
+    r->render(K, T, opt, head);
+    opt.light = Light::point;
+    opt.light_position_camera_mm = {0, 0, 0};
+    r->render(K, T, opt, at_lens);
+    opt.light_position_camera_mm = {1e5, 0, -1e5};  // 141 m off towards the camera's +x and back
+    r->render(K, T, opt, far);
+    opt.light_position_camera_mm = {200, 0, 0};  // in the lens plane, as far aside as the ball is away
+    r->render(K, T, opt, aside);
+    opt.light = Light::distant;
+    opt.light_direction_camera = {1, 0, -1};
+    r->render(K, T, opt, distant);
+
+    ASSERT_GT(mean_grey(head, true), 0.05) << "the ball must be in view";
+    double max_lens = 0, sum_far = 0, sum_head = 0;
+    for (size_t i = 0; i < head.grey.size(); ++i) {
+        max_lens = std::max(max_lens, double(std::abs(head.grey[i] - at_lens.grey[i])));
+        sum_far += std::abs(far.grey[i] - distant.grey[i]);
+        sum_head += std::abs(far.grey[i] - head.grey[i]);
+    }
+    EXPECT_LT(max_lens, 1e-5);  // the lamp at the lens lights each sample along its ray
+    EXPECT_LT(sum_far / double(head.grey.size()), 2e-3);  // from afar its rays are parallel
+    EXPECT_GT(sum_head / double(head.grey.size()), 0.02);
+    // Lit from the right: the right half brighter than the left.
+    EXPECT_GT(mean_grey(aside, false), mean_grey(aside, true) + 0.05);
 }

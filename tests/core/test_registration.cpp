@@ -470,7 +470,7 @@ TEST(Registration, EachFinalistCanHaveTheLightEstimatedAtItsOwnPose) {
     ASSERT_LT(finals[0]->best_cost, finals[1]->best_cost) << "the test needs the first finalist to win";
     EXPECT_EQ(own.similarity, finals[0]->best_similarity);
     const Registration::PoseScore s = reg.score(f.c.photo, own.T_camera_from_world, own.initial_T_camera_from_world,
-                                                p.final_stages.back(), own.light_direction_camera);
+                                                p.final_stages.back(), own.light_direction_camera, own.light_position_camera_mm);
     EXPECT_NEAR(s.similarity, own.similarity, 1e-9);
     EXPECT_EQ(result_to_json(own)["parameters"]["light_per_finalist"], true);
 }
@@ -701,6 +701,75 @@ TEST(Registration, SampleAnchorAtPivotSmoothsTheSimilarityAlongDepth) {
     EXPECT_LT(r_anchored, 0.5 * r_riding);
     EXPECT_TRUE(registration_params_from_json(to_json(anchored), "params").sample_anchor_at_pivot);
     EXPECT_FALSE(registration_params_from_json(to_json(riding), "params").sample_anchor_at_pivot);
+}
+
+TEST(Registration, APointLightAtTheLensScoresAFlashLitPhotoAtItsDepthWhereADistantOnePushesTheCameraBack) {
+    // A photo lit from the lens (a ring flash; the registration's own rendering with a headlight)
+    // scored along the camera's axis about the truth. A distant light along the axis, the
+    // nearest the distant model comes to a flash, shades each gyrus's top where the flash lit
+    // the side facing the camera: the shading sits outward of the photo's, and a smaller
+    // picture, the camera farther back, fits better (evaluate --from-truth on such photos:
+    // +1.8 to +4.9 mm, thirty-third session). A point light at the lens is the flash.
+    const Fixture& f = fixture();
+    ASSERT_TRUE(f.c.spec.truth.has_value());
+    const Pose T_true = f.c.spec.truth->T_camera_from_world;
+    RegistrationParams p = small_params();
+    p.sulcal_weight = 0;          // the photo is the plain shaded surface
+    p.landmark_prior_weight = 0;  // the photo alone
+    Registration reg(f.c.volume, f.c.mask, p);
+    const Intrinsics Kp = f.c.photo.camera.scaled(600.0 / f.c.photo.camera.width);
+    RenderOptions o;
+    o.surface_only = true;
+    o.sample_distance_mm = p.sample_distance_mm;
+    RenderImage img;
+    reg.renderer().render(Kp, T_true, o, img);
+    cv::Mat rgb(img.height, img.width, CV_8UC3, img.rgb.data()), bgr;
+    cv::cvtColor(rgb, bgr, cv::COLOR_RGB2BGR);
+    PhotoInput in = f.c.photo;
+    in.photo_bgr = bgr;
+
+    StageParams stage = p.final_stages.front();
+    stage.fwhm_mm = 2;
+    stage.render_width_px = 250;
+    auto peak_depth_mm = [&](std::optional<Eigen::Vector3d> direction, std::optional<Eigen::Vector3d> lamp_mm) {
+        double best = -1e300, at = 0;
+        for (int i = -12; i <= 12; ++i) {  // +-6 mm in 0.5 mm steps
+            Pose T = T_true;
+            T(2, 3) += 0.5 * i;  // the world 0.5 i mm farther from the camera
+            const double s = reg.score(in, T, T_true, stage, direction, lamp_mm).similarity;
+            if (s > best) best = s, at = 0.5 * i;
+        }
+        return at;
+    };
+    const double distant_mm = peak_depth_mm(Eigen::Vector3d(0, 0, -1), std::nullopt);
+    const double point_mm = peak_depth_mm(std::nullopt, Eigen::Vector3d::Zero());
+    std::printf("similarity peaks in depth: distant light along the axis %+.1f mm, point light at the lens %+.1f mm\n",
+                distant_mm, point_mm);
+    EXPECT_GE(distant_mm, 1.0);
+    EXPECT_LE(std::abs(point_mm), 0.5);
+
+    // The point model's grid finds the lamp at the lens, and the result says where it is.
+    p.light_model = "point";
+    p.estimate_light = true;
+    p.light_rounds = 1;
+    p.light_width_px = 128;
+    p.starts = {{0, 0, 0, 0, 0, 0}};
+    p.search_stages.clear();
+    p.keep_best = 1;
+    p.final_stages = {{"final", 2, 0.5, 0.5, 128, 8, 0.05, 0.05}};
+    p.refine_stages.clear();
+    in.initial_pose = T_true;
+    const RegistrationResult r = Registration(f.c.volume, f.c.mask, p).run(in);
+    ASSERT_TRUE(r.light_position_camera_mm.has_value());
+    const double depth_mm = (T_true.topLeftCorner<3, 3>() * r.pivot_world_mm + T_true.topRightCorner<3, 1>()).z();
+    EXPECT_LT(r.light_position_camera_mm->norm(), 0.1 * depth_mm) << r.light_position_camera_mm->transpose();
+    const auto j = result_to_json(r);
+    EXPECT_EQ(j["parameters"]["light_model"], "point");
+    EXPECT_EQ(j["light_position_camera_mm"].size(), 3u);
+    EXPECT_EQ(registration_params_from_json(to_json(p), "params").light_model, "point");
+    nlohmann::json bad = to_json(p);
+    bad["light_model"] = "spot";
+    EXPECT_THROW(registration_params_from_json(bad, "params"), InputError);
 }
 
 TEST(Registration, APoseLookingAwayFromTheBrainIsAClearInputError) {

@@ -418,7 +418,7 @@ TEST(CpuRenderer, DirectionalLightFromTheRightFrontBrightensTheRightSide) {
     const Intrinsics K = camera();
     RenderOptions opt;
     opt.surface_only = true;
-    opt.directional_light = true;
+    opt.light = Light::distant;
     opt.light_direction_camera = {1, 0, -1};  // towards image right and the camera
     RenderImage im;
     r->render(K, facing(c, D), opt, im);
@@ -443,7 +443,7 @@ TEST(CpuRenderer, DirectionalLightIsTwoSided) {
     const Intrinsics K = camera();
     RenderOptions opt;
     opt.surface_only = true;
-    opt.directional_light = true;
+    opt.light = Light::distant;
     opt.light_direction_camera = {1, 0, 0};  // exactly from the right
     RenderImage im;
     r->render(K, facing(c, 200), opt, im);

@@ -62,9 +62,15 @@ TEST(GlGolden, SphereOptionsVariants) {
     opt.coverage_alpha = 0.3;
     expect_same_pictures(v, preset_transfer_function("skin"), nullptr, K, T, opt, "skin, 1.7 mm");
     opt = RenderOptions{};
-    opt.directional_light = true;
+    opt.light = Light::distant;
     opt.light_direction_camera = {0.4, -0.3, -1};
     expect_same_pictures(v, preset_transfer_function("cortex_t1"), nullptr, K, T, opt, "distant light from aside");
+    opt = RenderOptions{};
+    opt.light = Light::point;
+    opt.light_position_camera_mm = {60, -40, 10};
+    expect_same_pictures(v, preset_transfer_function("cortex_t1"), nullptr, K, T, opt, "point light aside");
+    opt.surface_only = true;
+    expect_same_pictures(v, preset_transfer_function("cortex_t1"), nullptr, K, T, opt, "point light aside, surface only");
     opt = RenderOptions{};
     opt.surface_only = true;
     expect_same_pictures(v, preset_transfer_function("cortex_t1"), nullptr, K, T, opt, "surface only");

@@ -92,7 +92,7 @@ struct Layer {
 struct RaycastProgram {
     Program prog;
     GLint R = -1, cam = -1, ifw = -1, dims = -1, box_lo = -1, box_hi = -1, weight = -1, grad_scale = -1, grad_n = -1,
-          grad_pts = -1, iso = -1, step = -1, phase = -1, ambient = -1, diffuse = -1, term = -1, cov = -1, shading = -1, has_mesh = -1, directional = -1, light_world = -1, surface_only = -1,
+          grad_pts = -1, iso = -1, step = -1, phase = -1, ambient = -1, diffuse = -1, term = -1, cov = -1, shading = -1, has_mesh = -1, light = -1, light_world = -1, light_pos_world = -1, surface_only = -1,
           start_on = -1, start_origin = -1, start_inv_cell = -1, start_cells = -1;
 };
 
@@ -396,7 +396,12 @@ public:
                                                                                  opt.light_direction_camera[2]))
                                               .normalized()
                                               .cast<float>();
-                glUniform1i(P.directional, opt.directional_light ? 1 : 0);
+                const Eigen::Vector3f Lp = (T.inverse() * Eigen::Vector4d(opt.light_position_camera_mm[0], opt.light_position_camera_mm[1],
+                                                                           opt.light_position_camera_mm[2], 1.0))
+                                               .head<3>()
+                                               .cast<float>();
+                glUniform1i(P.light, opt.light == Light::distant ? 1 : opt.light == Light::point ? 2 : 0);
+                glUniform3f(P.light_pos_world, Lp.x(), Lp.y(), Lp.z());
                 glUniform1i(P.surface_only, opt.surface_only ? 1 : 0);
                 glUniform3f(P.light_world, L.x(), L.y(), L.z());
             }
@@ -493,7 +498,8 @@ private:
         P.term = loc("u_term");
         P.cov = loc("u_cov");
         P.shading = loc("u_shading");
-        P.directional = loc("u_directional");
+        P.light = loc("u_light");
+        P.light_pos_world = loc("u_light_pos_world");
         P.surface_only = loc("u_surface_only");
         P.light_world = loc("u_light_world");
         P.has_mesh = loc("u_has_mesh");

@@ -65,6 +65,11 @@ struct RegistrationParams {
     bool estimate_light = false;
     double light_max_offset = 0.5;
     int light_grid = 5;    // points per axis of the first grid (a finer 3 x 3 follows)
+    /// What the grid's (x, y) place: "distant", a light from direction (x, y, -1) for the whole
+    /// picture; "point", a lamp in the lens plane at (x, y, 0) times the pivot's depth, whose
+    /// direction turns across the picture as a flash's or a lamp's near the camera does ((0, 0)
+    /// is the headlight exactly).
+    std::string light_model = "distant";
     int light_rounds = 1;  // estimate + final stages, repeated
     /// Also estimate the light after the first search stage, at the best screened pose, so
     /// the later search stages render with it rather than with a headlight.
@@ -250,6 +255,9 @@ struct RegistrationResult {
     /// The light direction the final stages rendered with (camera frame, towards the light);
     /// (0, 0, -1) with a headlight.
     Eigen::Vector3d light_direction_camera{0, 0, -1};
+    /// With RegistrationParams::light_model "point": the lamp's position (camera frame, mm), and
+    /// light_direction_camera is its direction from the pivot; nullopt otherwise.
+    std::optional<Eigen::Vector3d> light_position_camera_mm;
     /// The prominence gate (RegistrationParams::prominence_gate): the mean peak prominence of tx
     /// and ty about the winner (NaN when the gate did not run), and whether it fell under the
     /// gate so that the landmarks were weighed up for the last round.
@@ -300,9 +308,11 @@ public:
     struct PoseScore {
         double similarity = 0, cost = 0;
     };
-    /// `light_direction_camera`: a distant light (a result's estimate); nullopt: the headlight.
+    /// The light (a result's estimate): a point light at `light_position_camera_mm` when given,
+    /// else a distant light from `light_direction_camera` when given, else the headlight.
     PoseScore score(const PhotoInput& in, const Pose& T, const Pose& T_reference, const StageParams& stage,
-                    std::optional<Eigen::Vector3d> light_direction_camera = std::nullopt);
+                    std::optional<Eigen::Vector3d> light_direction_camera = std::nullopt,
+                    std::optional<Eigen::Vector3d> light_position_camera_mm = std::nullopt);
     const RegistrationParams& params() const { return params_; }
     /// The renderer used for the similarity (registration style), e.g. for depth lookups.
     Renderer& renderer() { return *renderer_; }

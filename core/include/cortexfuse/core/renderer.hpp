@@ -17,6 +17,13 @@
 
 namespace cf {
 
+/// The Lambert light's kind. A headlight lights each sample along its ray (the seed's); a
+/// distant light from one direction for the whole picture (a lamp far away); a point light
+/// from one place, so that its direction changes across the picture (a ring flash, a
+/// headlamp, a microscope's light or a lamp near the camera: at 200-450 mm, across the
+/// ROI its direction turns by as much as the rays do, about 10 deg).
+enum class Light { headlight, distant, point };
+
 struct RenderOptions {
     double sample_distance_mm = 1.0;     // step along the ray
     /// Samples lie at t = phase + n * step along each ray (t: mm from the camera). Unset, the
@@ -29,13 +36,15 @@ struct RenderOptions {
     double ambient = 0.2;                // Lambert shading from a headlight at the camera
     double diffuse = 0.8;
     bool shading = true;
-    /// Where the Lambert light comes from: false = a headlight along each ray (the seed); true =
-    /// a distant light from `light_direction_camera` (camera frame, pointing from the scene
-    /// towards the light). Registration estimates it from the photo: the lamp is rarely at the lens.
-    /// Lambert is two-sided, |n.L|, for both: a surface facing away from the distant light is lit
-    /// as if it faced it (a one-sided term registered worse: docs/registration.md).
-    bool directional_light = false;
+    /// Where the Lambert light comes from (Light). Registration estimates it from the photo: the
+    /// lamp is rarely exactly at the lens. Lambert is two-sided, |n.L|, for every kind: a surface
+    /// facing away from the light is lit as if it faced it (a one-sided term registered worse:
+    /// docs/registration.md).
+    Light light = Light::headlight;
+    /// Light::distant: camera frame, pointing from the scene towards the light.
     std::array<double, 3> light_direction_camera{0, 0, -1};
+    /// Light::point: the lamp's position, camera frame, mm ({0, 0, 0} is the headlight).
+    std::array<double, 3> light_position_camera_mm{0, 0, 0};
     /// Show only the first crossing of the transfer function's surface level (where opacity
     /// reaches 0.5), shaded and opaque: no compositing of the samples around it. Registration
     /// uses it: a composited pixel's grey changes with where the sample lattice falls on the
