@@ -54,6 +54,9 @@ void add_phantom(CLI::App& app) {
     cmd->add_option("--sulcal-blood-prob", p.sulcal_blood_prob, "probability of subarachnoid blood in the sulci over a patch");
     cmd->add_option("--blood-film-prob", p.blood_film_prob, "probability of a thin film of blood over part of the cortex");
     cmd->add_option("--lamp-spot-prob", p.lamp_spot_prob, "probability that the OR lamp's spot lights the field (else evenly, as a flash)")->capture_default_str();
+    cmd->add_option("--far-lamp-prob", p.far_lamp_prob,
+                    "probability that the light is the OR's light head 0.8-1.2 m overhead (else a light near the camera)")
+        ->capture_default_str();
     cmd->add_option("--skin-prep-prob", p.skin_prep_prob, "probability of iodine skin prep staining the scalp")->capture_default_str();
     cmd->add_flag("!--no-photo-finish", p.photo_finish,
                   "leave out the photographic finish (drape folds in relief, glints in blood, halation, lateral colour, stubble, the rim of the opening by hand)");

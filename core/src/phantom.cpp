@@ -36,6 +36,7 @@ void PhantomParams::validate() const {
     if (sulcal_blood_prob) prob("sulcal-blood-prob", *sulcal_blood_prob);
     if (blood_film_prob) prob("blood-film-prob", *blood_film_prob);
     prob("lamp-spot-prob", lamp_spot_prob);
+    prob("far-lamp-prob", far_lamp_prob);
     prob("skin-prep-prob", skin_prep_prob);
     prob("distortion-prob", distortion_prob);
     prob("png-fraction", png_fraction);
@@ -811,6 +812,20 @@ PhantomCase generate_phantom_case(const PhantomSurface& S, const PhantomParams& 
 
     Look L = random_look(rng);
     add_finish(L, P.photo_finish, P.tissue_optics);
+    // The OR's light head far overhead instead of a light near the camera: 0.8-1.2 m from the
+    // opening, up to 35 deg off the camera's axis, so its rays are nearly parallel across the
+    // opening. A stream of its own, every value drawn whatever the chance, so a seed's cases are
+    // the same without it.
+    double far_lamp_mm = 0;
+    {
+        Rng rfl(splitmix64(P.seed * 0xA24BAED4963EE407ull + splitmix64(uint64_t(index) + 0xFA1Aull)));
+        const bool far = rfl.chance(P.far_lamp_prob);
+        const double d = rfl.uni(800, 1200), th = 35 * kPi / 180 * std::sqrt(rfl.uni()), ph = rfl.uni(0, 2 * kPi);
+        if (far) {
+            L.light_offset_camera_mm = Vec3(0, 0, dist) + d * Vec3(std::sin(th) * std::cos(ph), std::sin(th) * std::sin(ph), -std::cos(th));
+            far_lamp_mm = d;
+        }
+    }
     cr.clip_shaped = L.finish;
     cr.clip_tilt = L.clip_tilt_deg * kPi / 180;
     out.jpeg = dslr || !rng.chance(P.png_fraction);
@@ -1871,7 +1886,7 @@ PhantomCase generate_phantom_case(const PhantomSurface& S, const PhantomParams& 
           << " towels=" << cr.n_towels << " burr_holes=" << cr.n_burr << " clips=" << cr.n_clips
           << " dural_flap=" << (cr.flap_w > 0 ? "yes" : "no") << " arachnoid_veil=" << fmt(cr.veil)
           << " sulcal_blood=" << fmt(cr.sah) << " blood_film_mm=" << fmt(cr.film_mm)
-          << " lamp_spot_mm=" << fmt(cr.spot_r_mm, 0) << " spot_floor=" << fmt(cr.spot_floor) << " skin_prep=" << fmt(cr.prep)
+          << " far_lamp_mm=" << fmt(far_lamp_mm, 0) << " lamp_spot_mm=" << fmt(cr.spot_r_mm, 0) << " spot_floor=" << fmt(cr.spot_floor) << " skin_prep=" << fmt(cr.prep)
           << " shininess=" << fmt(L.shininess, 0) << " spec=" << fmt(L.spec) << " exposure=" << fmt(L.exposure)
           << " noise_sd=" << fmt(L.noise_sd) << " photo_finish=" << (L.finish ? "yes" : "no")
           << " drape_fold_slope=" << fmt(L.fold_slope) << " drape_fold_mm=" << fmt(L.fold_mm, 0) << " halation=" << fmt(L.bloom)

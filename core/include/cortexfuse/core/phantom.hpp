@@ -52,6 +52,11 @@ struct PhantomParams {
     /// landmarks and ROI do not depend on them, nor does one on the other. 0..1.
     double lamp_spot_prob = 0.8;
     double skin_prep_prob = 0.6;
+    /// Probability that the light is the OR's light head far overhead (0.8-1.2 m, up to 35 deg
+    /// off the camera's axis: rays nearly parallel across the opening) rather than a light near
+    /// the camera (a flash, a headlamp, the microscope's; up to 120 mm aside of the lens). From
+    /// a stream of its own: at 0 a seed's cases are those it gave before the option. 0..1.
+    double far_lamp_prob = 0;
     /// The photographic finish: the drapes' folds in relief under the lamp, the lamp mirrored
     /// in pools of blood (glints, not flecks), halation around glare, the lens' lateral colour,
     /// pores and stubble on the scalp, pits in the bone. Drawn from the look's own stream, so a
