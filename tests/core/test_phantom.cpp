@@ -336,6 +336,38 @@ TEST_F(Phantom, TheLampsSpotAndTheSkinPrepChangeLightAndScalpAndLeaveTheCaseAlon
     EXPECT_THROW(bad.validate(), InputError);
 }
 
+TEST_F(Phantom, AFarLampRelightsTheCortexAndLeavesTheCaseAlone) {
+    PhantomParams p;
+    p.seed = 9;
+    p.dslr_fraction = 0.0;
+    p.gauze_prob = p.blood_prob = 0.0;
+    const PhantomCase near = generate_phantom_case(*surface_, p, 0);
+    EXPECT_NE(near.notes.find(" far_lamp_mm=0 "), std::string::npos) << near.notes;
+    p.far_lamp_prob = 1.0;
+    const PhantomCase far = generate_phantom_case(*surface_, p, 0);
+    ASSERT_NO_FATAL_FAILURE(expect_noted_and_case_alone(far, near, " far_lamp_mm="));
+    const double d_mm = std::stod(far.notes.substr(far.notes.find(" far_lamp_mm=") + 13));
+    EXPECT_GE(d_mm, 800);
+    EXPECT_LE(d_mm, 1200);
+    // The cortex is lit from elsewhere: its shading changes over much of the opening.
+    const cv::Mat roi = roi_mask_of(near);
+    ASSERT_EQ(far.photo_bgr.size(), near.photo_bgr.size());
+    int n = 0, changed = 0;
+    for (int y = 0; y < roi.rows; ++y)
+        for (int x = 0; x < roi.cols; ++x) {
+            if (!roi.at<uint8_t>(y, x)) continue;
+            const cv::Vec3b a = far.photo_bgr.at<cv::Vec3b>(y, x), b = near.photo_bgr.at<cv::Vec3b>(y, x);
+            ++n;
+            changed += std::abs(int(a[2]) - int(b[2])) > 12;
+        }
+    ASSERT_GT(n, 1000);
+    EXPECT_GT(changed, n / 10) << changed << " of " << n << " ROI pixels";
+    std::printf("far lamp: %d of %d ROI pixels changed\n", changed, n);
+    PhantomParams bad = p;
+    bad.far_lamp_prob = 1.5;
+    EXPECT_THROW(bad.validate(), InputError);
+}
+
 // The photographic finish is drawn from the look's own stream: the case (pose, landmarks, ROI,
 // targets) is the same with it and without. With it, the drapes' folds stand in relief (more
 // contrast at the folds' scale on the cloth), and glare spreads a halo around it. (Without it the
