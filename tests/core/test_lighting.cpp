@@ -3,7 +3,9 @@
 // the camera's +x side it brightens the sphere's +x half.
 #include <gtest/gtest.h>
 
+#include <array>
 #include <cmath>
+#include <memory>
 
 #include "cortexfuse/core/renderer.hpp"
 #include "cortexfuse/core/transfer_function.hpp"
@@ -57,22 +59,31 @@ double mean_grey(const RenderImage& im, bool left_half) {
     return n ? s / n : 0.0;
 }
 
+/// The ball before the camera (renderer, camera, pose), pictured grey under one light at a time.
+struct BallScene {
+    Volume v = ball();
+    std::unique_ptr<Renderer> r = make_cpu_renderer(v, preset_transfer_function("surface_white"), nullptr);
+    Intrinsics K = camera();
+    Pose T = facing(v.geom.center_world_mm());
+
+    RenderImage lit(Light kind, std::array<double, 3> direction_or_position = {0, 0, -1}) const {
+        RenderOptions opt;
+        opt.want_rgb = false;
+        opt.light = kind;
+        if (kind == Light::point) opt.light_position_camera_mm = direction_or_position;
+        else opt.light_direction_camera = direction_or_position;
+        RenderImage im;
+        r->render(K, T, opt, im);
+        return im;
+    }
+};
+
 }  // namespace
 
 TEST(Lighting, DistantLightAlongTheAxisLooksLikeTheHeadlightAndFromAsideShadesThatSide) {
-    const Volume v = ball();
-    auto r = make_cpu_renderer(v, preset_transfer_function("surface_white"), nullptr);
-    const Intrinsics K = camera();
-    const Pose T = facing(v.geom.center_world_mm());
-    RenderOptions opt;
-    opt.want_rgb = false;
-    RenderImage head, axis, aside;
-    r->render(K, T, opt, head);
-    opt.light = Light::distant;
-    opt.light_direction_camera = {0, 0, -1};
-    r->render(K, T, opt, axis);
-    opt.light_direction_camera = {1, 0, -1};  // 45 deg towards the camera's +x (image right)
-    r->render(K, T, opt, aside);
+    const BallScene scene;
+    const RenderImage head = scene.lit(Light::headlight), axis = scene.lit(Light::distant, {0, 0, -1});
+    const RenderImage aside = scene.lit(Light::distant, {1, 0, -1});  // 45 deg towards the camera's +x (image right)
 
     ASSERT_GT(mean_grey(head, true), 0.05) << "the ball must be in view";
     // Headlight rays diverge by at most ~9 deg here: nearly the same picture.
@@ -86,24 +97,11 @@ TEST(Lighting, DistantLightAlongTheAxisLooksLikeTheHeadlightAndFromAsideShadesTh
 }
 
 TEST(Lighting, APointLightAtTheLensIsTheHeadlightAFarOneADistantLightAndOneAsideShadesThatSide) {
-    const Volume v = ball();
-    auto r = make_cpu_renderer(v, preset_transfer_function("surface_white"), nullptr);
-    const Intrinsics K = camera();
-    const Pose T = facing(v.geom.center_world_mm());
-    RenderOptions opt;
-    opt.want_rgb = false;
-    RenderImage head, at_lens, far, distant, aside;
-    r->render(K, T, opt, head);
-    opt.light = Light::point;
-    opt.light_position_camera_mm = {0, 0, 0};
-    r->render(K, T, opt, at_lens);
-    opt.light_position_camera_mm = {1e5, 0, -1e5};  // 141 m off towards the camera's +x and back
-    r->render(K, T, opt, far);
-    opt.light_position_camera_mm = {200, 0, 0};  // in the lens plane, as far aside as the ball is away
-    r->render(K, T, opt, aside);
-    opt.light = Light::distant;
-    opt.light_direction_camera = {1, 0, -1};
-    r->render(K, T, opt, distant);
+    const BallScene scene;
+    const RenderImage head = scene.lit(Light::headlight), at_lens = scene.lit(Light::point, {0, 0, 0});
+    const RenderImage far = scene.lit(Light::point, {1e5, 0, -1e5});  // 141 m off towards the camera's +x and back
+    const RenderImage distant = scene.lit(Light::distant, {1, 0, -1});
+    const RenderImage aside = scene.lit(Light::point, {200, 0, 0});  // in the lens plane, as far aside as the ball is away
 
     ASSERT_GT(mean_grey(head, true), 0.05) << "the ball must be in view";
     double max_lens = 0, sum_far = 0, sum_head = 0;
