@@ -375,7 +375,7 @@ TransformError transform_error(const Eigen::Matrix4d& A, const Eigen::Matrix4d& 
         for (int j = 0; j < d[1]; ++j)
             for (int i = 0; i < d[0]; ++i) {
                 if (!mask.at(i, j, k)) continue;
-                const Eigen::Vector4d p = (Eigen::Vector4d() << W * Eigen::Vector3d(i, j, k), 1.0).finished();
+                const Eigen::Vector4d p = (W * Eigen::Vector3d(i, j, k)).homogeneous();
                 const double dist = ((A - B) * p).head<3>().norm();
                 sum += dist;
                 e.max_mm = std::max(e.max_mm, dist);
