@@ -64,10 +64,7 @@ void add_render(CLI::App& app) {
             const RendererKind kind = parse_renderer_kind(o->renderer);
             const Volume v = load_volume(o->volume);
             LabelVolume mask;
-            if (!o->mask.empty()) {
-                mask = load_mask(o->mask);
-                if (!mask.geom.same_grid(v.geom)) mask = resample_nearest(mask, v.geom);
-            }
+            if (!o->mask.empty()) mask = load_mask(o->mask, v.geom);
             Intrinsics K;
             if (!o->camera_file.empty()) {
                 K = parse_camera(read_json_file(o->camera_file), o->camera_file);

@@ -210,10 +210,7 @@ json run_render_bench(const RenderBenchConfig& c, const Progress* progress) {
 
     const Volume v = load_volume(c.volume);
     std::optional<LabelVolume> mask;
-    if (!c.mask.empty()) {
-        mask = load_mask(c.mask);
-        if (!mask->geom.same_grid(v.geom)) mask = resample_nearest(*mask, v.geom);
-    }
+    if (!c.mask.empty()) mask = load_mask(c.mask, v.geom);
     const auto t_prep = Clock::now();
     auto r = make_renderer(c.renderer, v, tf, mask ? &*mask : nullptr);
     const double prepare_ms = ms_since(t_prep);

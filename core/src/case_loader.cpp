@@ -25,8 +25,7 @@ LoadedCase load_case(const fs::path& dir, const Progress* progress) {
     c.photo.initial_pose = c.spec.initial_pose;
     c.volume = load_volume(c.spec.volume_path);
     if (c.spec.brain_mask_path) {
-        c.mask = load_mask(*c.spec.brain_mask_path);
-        if (!c.mask.geom.same_grid(c.volume.geom)) c.mask = resample_nearest(c.mask, c.volume.geom);
+        c.mask = load_mask(*c.spec.brain_mask_path, c.volume.geom);
         if (c.mask.count_nonzero() < 1000)
             throw InputError(c.spec.brain_mask_path->string(), "brain mask is empty or does not overlap the volume");
     } else {

@@ -75,6 +75,11 @@ LabelVolume load_mask(const fs::path& path) {
     return m;
 }
 
+LabelVolume load_mask(const fs::path& path, const VolumeGeometry& grid) {
+    LabelVolume m = load_mask(path);
+    return m.geom.same_grid(grid) ? m : resample_nearest(m, grid);
+}
+
 void save_volume(const Volume& v, const fs::path& path) { itkb::write_float(path.string(), to_grid(v.geom), v.voxels.data()); }
 void save_mask(const LabelVolume& m, const fs::path& path) { itkb::write_u8(path.string(), to_grid(m.geom), m.voxels.data()); }
 

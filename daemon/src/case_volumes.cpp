@@ -125,9 +125,7 @@ std::shared_ptr<const LoadedCaseVolume> CaseVolumeCache::get(const CaseVolumeRef
                 if (!ref.mask_sha.empty()) {
                     const fs::path mf = dir / ref.mask_name;
                     store_.copy_blob_to(ref.mask_sha, mf);
-                    LabelVolume m = load_mask(mf);
-                    if (!m.geom.same_grid(out->volume.geom)) m = resample_nearest(m, out->volume.geom);
-                    out->brain_mask = std::move(m);
+                    out->brain_mask = load_mask(mf, out->volume.geom);
                 }
             } catch (...) {
                 err = std::current_exception();

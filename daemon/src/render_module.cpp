@@ -549,10 +549,7 @@ void RenderModule::loop() {
     try {
         const auto t0 = Clock::now();
         sc.volume = load_volume(cfg_.t1_path);
-        if (!cfg_.brain_mask_path.empty()) {
-            sc.mask = load_mask(cfg_.brain_mask_path);
-            if (!sc.mask->geom.same_grid(sc.volume->geom)) sc.mask = resample_nearest(*sc.mask, sc.volume->geom);
-        }
+        if (!cfg_.brain_mask_path.empty()) sc.mask = load_mask(cfg_.brain_mask_path, sc.volume->geom);
         log(LogLevel::info, "render", "volume loaded in " + std::to_string(int(ms_since(t0))) + " ms");
         nlohmann::json info = geometry_json(sc.volume->geom);
         if (sc.mask) info["brain"] = mask_bounds_json(*sc.mask);

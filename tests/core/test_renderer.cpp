@@ -617,8 +617,7 @@ TEST(CpuRenderer, ASampleAnchorKeepsTheSurfaceSteadyAsTheCameraMovesAlongItsAxis
     const std::filesystem::path bm = std::filesystem::path(CF_DATA_DIR) / "brainmask_mne_ecog_binary.nii.gz";
     if (!std::filesystem::exists(t1) || !std::filesystem::exists(bm)) GTEST_SKIP() << "bundled MRI not found";
     const Volume v = load_volume(t1);
-    LabelVolume mask = load_mask(bm);
-    if (!mask.geom.same_grid(v.geom)) mask = resample_nearest(mask, v.geom);
+    const LabelVolume mask = load_mask(bm, v.geom);
     auto r = make_cpu_renderer(v, preset_transfer_function("surface_white"), &mask);
     const Intrinsics K = camera(160, 120, 700);
     const Eigen::Vector3d target = v.geom.center_world_mm() + Eigen::Vector3d(-55, 0, 35);  // left, up: cortex

@@ -92,6 +92,35 @@ TEST(Volume, ResampleOntoIsotropicGridKeepsWorldValues) {
     EXPECT_GT(checked, 50);
 }
 
+TEST(Volume, AMaskIsLoadedOntoItsVolumesGridWhenItLiesOnAnother) {
+    // A mask saved on a coarser, turned grid (as a plan's or another tool's may be) lands on
+    // the volume's grid as resample_nearest puts it; one on the volume's grid comes as saved.
+    VolumeGeometry g;
+    g.dims = {20, 18, 16};
+    g.spacing_mm = {1.0, 1.0, 1.0};
+    VolumeGeometry coarse = g;
+    coarse.dims = {10, 9, 8};
+    coarse.spacing_mm = {2.0, 2.0, 2.0};
+    coarse.direction = rotation_xyz_deg(0, 0, 10);
+    LabelVolume m;
+    m.geom = coarse;
+    m.voxels.assign(coarse.voxel_count(), 0);
+    for (int k = 2; k < 6; ++k)
+        for (int j = 2; j < 7; ++j)
+            for (int i = 3; i < 8; ++i) m.voxels[coarse.linear(i, j, k)] = 1;
+    const fs::path dir = tmpdir("mask_on_grid");
+    save_mask(m, dir / "coarse.nii.gz");
+    const LabelVolume on_g = load_mask(dir / "coarse.nii.gz", g);
+    EXPECT_TRUE(on_g.geom.same_grid(g));
+    EXPECT_EQ(on_g.voxels, resample_nearest(load_mask(dir / "coarse.nii.gz"), g).voxels);
+    EXPECT_GT(on_g.count_nonzero(), 100u);
+    save_mask(on_g, dir / "fine.nii.gz");
+    const LabelVolume again = load_mask(dir / "fine.nii.gz", g);
+    EXPECT_EQ(again.voxels, on_g.voxels);
+    EXPECT_THROW(load_mask(dir / "missing.nii.gz", g), InputError);
+    fs::remove_all(dir);
+}
+
 TEST(Volume, ReadsDicomSeriesFolder) {
     const fs::path dir = fs::path(CF_TEST_DATA_DIR) / "dicom_mr_sag";
     if (!fs::exists(dir)) GTEST_SKIP() << "no DICOM test series";

@@ -186,8 +186,7 @@ TEST(GlGolden, BundledMriCrop) {
     const std::filesystem::path bm = std::filesystem::path(CF_DATA_DIR) / "brainmask_mne_ecog_binary.nii.gz";
     if (!std::filesystem::exists(t1) || !std::filesystem::exists(bm)) GTEST_SKIP() << "bundled MRI not found";
     const Volume full = load_volume(t1);
-    LabelVolume full_mask = load_mask(bm);
-    if (!full_mask.geom.same_grid(full.geom)) full_mask = resample_nearest(full_mask, full.geom);
+    const LabelVolume full_mask = load_mask(bm, full.geom);
     // A 96^3 crop of the upper left hemisphere: cortex, sulci, skin.
     const std::array<int, 3> size{96, 96, 96};
     std::array<int, 3> start{};

@@ -65,6 +65,9 @@ constexpr size_t kMaxVoxels = size_t(1024) * 1024 * 1024 / 4;  // 1 GiB of float
 Volume load_volume(const std::filesystem::path& path);
 /// Reads a mask; voxels > 0 become 1. Throws InputError.
 LabelVolume load_mask(const std::filesystem::path& path);
+/// Reads a mask and puts it on `grid` (nearest neighbour) when it lies on another: a mask
+/// saved on its volume's grid is taken as it is. Throws InputError.
+LabelVolume load_mask(const std::filesystem::path& path, const VolumeGeometry& grid);
 /// Writes by extension (NIfTI, NRRD, MHA). Throws InputError on failure.
 void save_volume(const Volume& v, const std::filesystem::path& path);
 void save_mask(const LabelVolume& m, const std::filesystem::path& path);
