@@ -396,7 +396,7 @@ public:
                                                                                  opt.light_direction_camera[2]))
                                               .normalized()
                                               .cast<float>();
-                const Eigen::Vector3f Lp = (T.inverse() * Eigen::Vector4d(opt.light_position_camera_mm[0], opt.light_position_camera_mm[1],
+                const Eigen::Vector3f Lp = (Tw * Eigen::Vector4d(opt.light_position_camera_mm[0], opt.light_position_camera_mm[1],
                                                                            opt.light_position_camera_mm[2], 1.0))
                                                .head<3>()
                                                .cast<float>();
