@@ -3,6 +3,9 @@
 #include <opencv2/calib3d.hpp>
 #include <opencv2/core/eigen.hpp>
 
+#include <Eigen/Geometry>
+#include <Eigen/SVD>
+
 #include <algorithm>
 #include <cmath>
 
@@ -21,6 +24,18 @@ double reprojection_rms_px(const std::vector<Landmark>& lms, const Intrinsics& K
 }
 
 namespace {
+// The normal of the plane nearest the landmarks' model points (least squares): the cortical
+// patch they were picked on.
+Eigen::Vector3d landmark_plane_normal(const std::vector<Landmark>& lms) {
+    Eigen::Vector3d mean = Eigen::Vector3d::Zero();
+    for (const auto& l : lms) mean += l.world_mm;
+    mean /= double(lms.size());
+    Eigen::MatrixXd M(long(lms.size()), 3);
+    for (size_t i = 0; i < lms.size(); ++i) M.row(long(i)) = (lms[i].world_mm - mean).transpose();
+    const Eigen::JacobiSVD<Eigen::MatrixXd> svd(M, Eigen::ComputeThinV);
+    return svd.matrixV().col(2);
+}
+
 Pose pose_from_rvec(const cv::Mat& rvec, const cv::Mat& tvec) {
     cv::Mat R;
     cv::Rodrigues(rvec, R);
@@ -128,23 +143,33 @@ std::vector<LandmarkFit> pnp_candidates(const std::vector<Landmark>& lms, const 
         for (const auto& l : lms) c += l.world_mm;
         c /= double(lms.size());
         const Eigen::Vector3d pc = T.topLeftCorner<3, 3>() * c + T.topRightCorner<3, 1>();
+        // The best pose turned by R (camera frame) about the centroid, as a start for LM.
+        auto consider_turn = [&](const Eigen::Matrix3d& R, const char* method) {
+            Pose M = Pose::Identity();
+            M.topLeftCorner<3, 3>() = R;
+            M.topRightCorner<3, 1>() = pc - R * pc;
+            const Pose T2 = M * T;
+            cv::Mat R2(3, 3, CV_64F), rvec, tvec(3, 1, CV_64F);
+            for (int r = 0; r < 3; ++r) {
+                for (int k = 0; k < 3; ++k) R2.at<double>(r, k) = T2(r, k);
+                tvec.at<double>(r) = T2(r, 3);
+            }
+            cv::Rodrigues(R2, rvec);
+            consider(rvec, tvec, method);
+        };
         const std::array<Eigen::Vector3d, 4> axes{Eigen::Vector3d(1, 0, 0), Eigen::Vector3d(0, 1, 0),
                                                   Eigen::Vector3d(1, 1, 0).normalized(), Eigen::Vector3d(1, -1, 0).normalized()};
         for (const auto& axis : axes)
-            for (double sign : {-1.0, 1.0}) {
-                const Eigen::Matrix3d R = Eigen::AngleAxisd(sign * 40.0 * M_PI / 180.0, axis).toRotationMatrix();
-                Pose M = Pose::Identity();
-                M.topLeftCorner<3, 3>() = R;
-                M.topRightCorner<3, 1>() = pc - R * pc;
-                const Pose T2 = M * T;
-                cv::Mat R2(3, 3, CV_64F), rvec, tvec(3, 1, CV_64F);
-                for (int r = 0; r < 3; ++r) {
-                    for (int k = 0; k < 3; ++k) R2.at<double>(r, k) = T2(r, k);
-                    tvec.at<double>(r) = T2(r, 3);
-                }
-                cv::Rodrigues(R2, rvec);
-                consider(rvec, tvec, "pnp-mirror");
-            }
+            for (double sign : {-1.0, 1.0})
+                consider_turn(Eigen::AngleAxisd(sign * 40.0 * M_PI / 180.0, axis).toRotationMatrix(), "pnp-mirror");
+        // The planar flip: a patch seen at tilt t off its normal looks, to a narrow lens, nearly as
+        // it does at -t, and the two fits lie 2t apart (90 deg for a 45 deg view), beyond the fixed
+        // turns above. Turn the patch's normal to its mirror image across the line of sight.
+        const Eigen::Vector3d normal_world = landmark_plane_normal(lms);
+        const Eigen::Vector3d n = T.topLeftCorner<3, 3>() * normal_world, sight = pc.normalized();
+        const Eigen::Vector3d n_flipped = 2.0 * sight.dot(n) * sight - n;
+        if (n.cross(n_flipped).norm() > 1e-6)
+            consider_turn(Eigen::Quaterniond::FromTwoVectors(n, n_flipped).toRotationMatrix(), "pnp-flip");
     }
     std::sort(out.begin(), out.end(), [](const LandmarkFit& a, const LandmarkFit& b) { return a.rms_px < b.rms_px; });
     // Keep those that explain the landmarks nearly as well as the best (noise of a few px).

@@ -20,7 +20,9 @@ struct LandmarkFit {
 LandmarkFit fit_pose_pnp(const std::vector<Landmark>& lms, const Intrinsics& K);
 /// Distinct poses that explain the landmarks about as well as the best one: near-planar
 /// cortical landmarks with picking noise leave PnP a mirror ambiguity (the surface tilted one
-/// way or the other), which only the image can settle. Best first; each refined by LM.
+/// way or the other), which only the image can settle. Best first; each refined by LM. Seeds:
+/// EPnP and iterative PnP, the best fit turned 40 deg about four axes, and its planar flip (the
+/// landmarks' plane tilted as far the other way about the line of sight, 2x the view's tilt).
 std::vector<LandmarkFit> pnp_candidates(const std::vector<Landmark>& lms, const Intrinsics& K,
                                         double min_separation_deg = 5.0);
 /// The seed's scaled-orthographic variant (affine camera, then orthonormalised), for comparison.
