@@ -100,7 +100,17 @@ LandmarkFit fit_pose_pnp(const std::vector<Landmark>& lms, const Intrinsics& K) 
     return fit;
 }
 
-std::vector<LandmarkFit> pnp_candidates(const std::vector<Landmark>& lms, const Intrinsics& K, double min_sep_deg) {
+double landmark_px_per_mm(const std::vector<Landmark>& lms, const Intrinsics& K, const Pose& T) {
+    if (lms.empty()) return 0;
+    Eigen::Vector3d c = Eigen::Vector3d::Zero();
+    for (const auto& l : lms) c += l.world_mm;
+    c /= double(lms.size());
+    const double z = (T.topLeftCorner<3, 3>() * c + T.topRightCorner<3, 1>()).z();
+    return z > 0 ? 0.5 * (K.fx + K.fy) / z : 0.0;
+}
+
+std::vector<LandmarkFit> pnp_candidates(const std::vector<Landmark>& lms, const Intrinsics& K, double min_sep_deg,
+                                        double world_sd_mm) {
     std::vector<LandmarkFit> out{fit_pose_pnp(lms, K)};
     std::vector<cv::Point3d> obj;
     std::vector<cv::Point2d> img;
@@ -173,7 +183,7 @@ std::vector<LandmarkFit> pnp_candidates(const std::vector<Landmark>& lms, const 
     }
     std::sort(out.begin(), out.end(), [](const LandmarkFit& a, const LandmarkFit& b) { return a.rms_px < b.rms_px; });
     // Keep those that explain the landmarks nearly as well as the best (noise of a few px).
-    const double limit = out.front().rms_px * 2.0 + 2.0;
+    const double limit = out.front().rms_px * 2.0 + 2.0 + world_sd_mm * landmark_px_per_mm(lms, K, out.front().T_camera_from_world);
     out.erase(std::remove_if(out.begin(), out.end(), [&](const LandmarkFit& f) { return f.rms_px > limit; }), out.end());
     return out;
 }

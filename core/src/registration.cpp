@@ -224,6 +224,7 @@ void RegistrationParams::validate(const std::string& ctx) const {
     if (!(vessel_mask_window >= 0 && vessel_mask_window <= 1000))
         bad("vessel_mask_window must be 0..1000 (0: the plain median and MAD)");
     if (!(landmark_prior_weight >= 0) || !(landmark_prior_tolerance_px >= 0)) bad("landmark prior must be >= 0");
+    if (!(landmark_world_sd_mm >= 0 && landmark_world_sd_mm <= 20)) bad("landmark_world_sd_mm must be 0..20 (0: off)");
     if (!(sample_distance_mm >= 0.1 && sample_distance_mm <= 5)) bad("sample_distance_mm must be 0.1..5");
     if (!(roi_margin_fraction >= 0 && roi_margin_fraction <= 2)) bad("roi_margin_fraction must be 0..2");
     if (outer_ray_stride < 1 || outer_ray_stride > 8) bad("outer_ray_stride must be 1..8 (1: every ray)");
@@ -324,6 +325,7 @@ json to_json(const RegistrationParams& p) {
     j["landmark_prior_weight"] = p.landmark_prior_weight;
     j["landmark_prior_tolerance_px"] = p.landmark_prior_tolerance_px;
     j["landmark_prior_expected"] = p.landmark_prior_expected;
+    j["landmark_world_sd_mm"] = p.landmark_world_sd_mm;
     j["sample_distance_mm"] = p.sample_distance_mm;
     j["depth_along_pivot_ray"] = p.depth_along_pivot_ray;
     j["initial_pose_landmark_moves"] = p.initial_pose_landmark_moves;
@@ -384,6 +386,7 @@ RegistrationParams registration_params_from_json(const json& j, const std::strin
         p.landmark_prior_weight = j.value("landmark_prior_weight", p.landmark_prior_weight);
         p.landmark_prior_tolerance_px = j.value("landmark_prior_tolerance_px", p.landmark_prior_tolerance_px);
         p.landmark_prior_expected = j.value("landmark_prior_expected", p.landmark_prior_expected);
+        p.landmark_world_sd_mm = j.value("landmark_world_sd_mm", p.landmark_world_sd_mm);
         p.sample_distance_mm = j.value("sample_distance_mm", p.sample_distance_mm);
         p.depth_along_pivot_ray = j.value("depth_along_pivot_ray", p.depth_along_pivot_ray);
         p.initial_pose_landmark_moves = j.value("initial_pose_landmark_moves", p.initial_pose_landmark_moves);
@@ -972,7 +975,12 @@ public:
     LandmarkPrior(const PhotoInput& in, const RegistrationParams& p) : in_(in), p_(p), weight_(p.landmark_prior_weight) {
         use_ = p.landmark_prior_weight > 0 && in.landmarks.size() >= 4;
         if (!use_) return;
-        rms_ref_px_ = fit_pose_pnp(in.landmarks, in.camera).rms_px;
+        const LandmarkFit fit = fit_pose_pnp(in.landmarks, in.camera);
+        rms_ref_px_ = fit.rms_px;
+        tolerance_px_ = p.landmark_prior_tolerance_px;
+        if (p.landmark_world_sd_mm > 0)
+            tolerance_px_ += p.landmark_world_sd_mm * landmark_px_per_mm(in.landmarks, in.camera, fit.T_camera_from_world) *
+                             double(kPriorReferenceWidthPx) / in.camera.width;
         if (p.landmark_prior_expected) {
             const double n = double(in.landmarks.size());
             rms_ref_px_ *= std::sqrt(2 * n / std::max(1.0, 2 * n - 6));
@@ -982,7 +990,7 @@ public:
         if (!use_) return 0;
         const double to_ref = double(kPriorReferenceWidthPx) / in_.camera.width;
         const double excess = std::max(0.0, (reprojection_rms_px(in_.landmarks, in_.camera, T) - rms_ref_px_) * to_ref -
-                                                p_.landmark_prior_tolerance_px);
+                                                tolerance_px_);
         return weight_ * excess * excess;
     }
     bool active() const { return use_; }
@@ -995,6 +1003,7 @@ private:
     double weight_;
     bool use_ = false;
     double rms_ref_px_ = 0;  // the fit's rms, or the truth's expected rms
+    double tolerance_px_ = 0;  // at kPriorReferenceWidthPx, with the model points' error
 };
 
 }  // namespace
@@ -1080,10 +1089,10 @@ RegistrationResult Registration::run(const PhotoInput& in, const Progress* progr
         // (on the featureless MNI152 photos such starts ended at wrong turns the NMI preferred).
         if (params_.initial_pose_landmark_moves && in.landmarks.size() >= 4 &&
             landmark_spread_warning(landmark_spread(in.landmarks)).empty())
-            fits = pnp_candidates(in.landmarks, K);
+            fits = pnp_candidates(in.landmarks, K, 5.0, params_.landmark_world_sd_mm);
     } else {
         if (in.landmarks.size() < 4) throw InputError("landmarks", "needs at least 4 pairs or an initial pose");
-        fits = pnp_candidates(in.landmarks, K);
+        fits = pnp_candidates(in.landmarks, K, 5.0, params_.landmark_world_sd_mm);
         T0 = fits.front().T_camera_from_world;
         res.initial_method = fits.front().method;
     }

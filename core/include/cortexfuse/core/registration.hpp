@@ -101,6 +101,12 @@ struct RegistrationParams {
     /// rms_fit * sqrt(2n / (2n - 6)) (twice the fit's for n = 4). Without this the prior pulls
     /// every run towards the landmark pose.
     bool landmark_prior_expected = false;
+    /// The landmarks' model-point error (mm, 1 sd: where on the MRI the surgeon clicked). A few
+    /// pairs fit six parameters closely enough to hide it, yet at the landmarks' magnification it
+    /// costs the true pose f / z pixels per mm. When > 0, that many pixels are added to the prior's
+    /// tolerance and to the RMS limit under which other landmark fits become starts. 0: pixels
+    /// only (opt-in since the thirty-fourth session; docs/registration.md).
+    double landmark_world_sd_mm = 0.0;
     double sample_distance_mm = 1.0;
     /// The optimiser's translation frame: false, the camera's axes (tz along the optical axis);
     /// true, tz along the line of sight through the pivot and tx, ty across it, so a depth step
