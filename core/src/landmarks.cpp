@@ -24,12 +24,16 @@ double reprojection_rms_px(const std::vector<Landmark>& lms, const Intrinsics& K
 }
 
 namespace {
+Eigen::Vector3d landmark_centroid(const std::vector<Landmark>& lms) {
+    Eigen::Vector3d c = Eigen::Vector3d::Zero();
+    for (const auto& l : lms) c += l.world_mm;
+    return c / double(lms.size());
+}
+
 // The normal of the plane nearest the landmarks' model points (least squares): the cortical
 // patch they were picked on.
 Eigen::Vector3d landmark_plane_normal(const std::vector<Landmark>& lms) {
-    Eigen::Vector3d mean = Eigen::Vector3d::Zero();
-    for (const auto& l : lms) mean += l.world_mm;
-    mean /= double(lms.size());
+    const Eigen::Vector3d mean = landmark_centroid(lms);
     Eigen::MatrixXd M(long(lms.size()), 3);
     for (size_t i = 0; i < lms.size(); ++i) M.row(long(i)) = (lms[i].world_mm - mean).transpose();
     const Eigen::JacobiSVD<Eigen::MatrixXd> svd(M, Eigen::ComputeThinV);
@@ -102,15 +106,12 @@ LandmarkFit fit_pose_pnp(const std::vector<Landmark>& lms, const Intrinsics& K) 
 
 double landmark_px_per_mm(const std::vector<Landmark>& lms, const Intrinsics& K, const Pose& T) {
     if (lms.empty()) return 0;
-    Eigen::Vector3d c = Eigen::Vector3d::Zero();
-    for (const auto& l : lms) c += l.world_mm;
-    c /= double(lms.size());
-    const double z = (T.topLeftCorner<3, 3>() * c + T.topRightCorner<3, 1>()).z();
+    const double z = (T.topLeftCorner<3, 3>() * landmark_centroid(lms) + T.topRightCorner<3, 1>()).z();
     return z > 0 ? 0.5 * (K.fx + K.fy) / z : 0.0;
 }
 
-std::vector<LandmarkFit> pnp_candidates(const std::vector<Landmark>& lms, const Intrinsics& K, double min_sep_deg,
-                                        double world_sd_mm) {
+std::vector<LandmarkFit> pnp_candidates(const std::vector<Landmark>& lms, const Intrinsics& K, double world_sd_mm,
+                                        double min_sep_deg) {
     std::vector<LandmarkFit> out{fit_pose_pnp(lms, K)};
     std::vector<cv::Point3d> obj;
     std::vector<cv::Point2d> img;
@@ -149,10 +150,7 @@ std::vector<LandmarkFit> pnp_candidates(const std::vector<Landmark>& lms, const 
     // The mirror of the best pose: tilt the view about the landmarks' centroid, then refine.
     {
         const Pose T = out.front().T_camera_from_world;  // a copy: consider() grows `out`
-        Eigen::Vector3d c = Eigen::Vector3d::Zero();
-        for (const auto& l : lms) c += l.world_mm;
-        c /= double(lms.size());
-        const Eigen::Vector3d pc = T.topLeftCorner<3, 3>() * c + T.topRightCorner<3, 1>();
+        const Eigen::Vector3d pc = T.topLeftCorner<3, 3>() * landmark_centroid(lms) + T.topRightCorner<3, 1>();
         // The best pose turned by R (camera frame) about the centroid, as a start for LM.
         auto consider_turn = [&](const Eigen::Matrix3d& R, const char* method) {
             Pose M = Pose::Identity();

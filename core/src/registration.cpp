@@ -1089,10 +1089,10 @@ RegistrationResult Registration::run(const PhotoInput& in, const Progress* progr
         // (on the featureless MNI152 photos such starts ended at wrong turns the NMI preferred).
         if (params_.initial_pose_landmark_moves && in.landmarks.size() >= 4 &&
             landmark_spread_warning(landmark_spread(in.landmarks)).empty())
-            fits = pnp_candidates(in.landmarks, K, 5.0, params_.landmark_world_sd_mm);
+            fits = pnp_candidates(in.landmarks, K, params_.landmark_world_sd_mm);
     } else {
         if (in.landmarks.size() < 4) throw InputError("landmarks", "needs at least 4 pairs or an initial pose");
-        fits = pnp_candidates(in.landmarks, K, 5.0, params_.landmark_world_sd_mm);
+        fits = pnp_candidates(in.landmarks, K, params_.landmark_world_sd_mm);
         T0 = fits.front().T_camera_from_world;
         res.initial_method = fits.front().method;
     }

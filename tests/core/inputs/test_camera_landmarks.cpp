@@ -321,7 +321,7 @@ TEST(LandmarkFit, TheModelPointsErrorInPixelsWidensTheCandidatesLimit) {
     for (uint32_t seed = 1; seed <= 60; ++seed) {
         const auto lms = steep_view_landmarks(K, T, seed, 2.0, 1.5);
         const auto without = pnp_candidates(lms, K);
-        const auto with = pnp_candidates(lms, K, 5.0, 1.5);
+        const auto with = pnp_candidates(lms, K, 1.5);
         ASSERT_GE(with.size(), without.size()) << seed;
         grew += with.size() > without.size();
         for (const auto& f : without) {

@@ -26,7 +26,7 @@ LandmarkFit fit_pose_pnp(const std::vector<Landmark>& lms, const Intrinsics& K);
 /// A fit is kept when its RMS is within 2 x the best's + 2 px + world_sd_mm at the best fit's
 /// magnification (f / z px per mm at the landmarks' centroid).
 std::vector<LandmarkFit> pnp_candidates(const std::vector<Landmark>& lms, const Intrinsics& K,
-                                        double min_separation_deg = 5.0, double world_sd_mm = 0.0);
+                                        double world_sd_mm = 0.0, double min_separation_deg = 5.0);
 /// Pixels per mm at the landmarks' centroid seen by T (f / z); 0 if it lies behind the camera.
 double landmark_px_per_mm(const std::vector<Landmark>& lms, const Intrinsics& K, const Pose& T);
 /// The seed's scaled-orthographic variant (affine camera, then orthonormalised), for comparison.
