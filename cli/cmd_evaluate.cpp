@@ -274,6 +274,8 @@ void add_evaluate(CLI::App& app) {
                                     {"seconds", r.seconds}, {"evaluations", r.evaluations}, {"similarity", r.similarity}, {"stages", stages},
                                     {"peak_prominence", std::isnan(r.peak_prominence) ? json(nullptr) : json(r.peak_prominence)},
                                     {"landmarks_weighed_up", r.landmarks_weighed_up},
+                                    {"landmark_prior_widened", r.landmark_prior_widened},
+                                    {"landmark_widened_fit_lead", std::isnan(r.landmark_widened_fit_lead) ? json(nullptr) : json(r.landmark_widened_fit_lead)},
                                     {"truth_score", {{"similarity", s_truth.similarity}, {"cost", s_truth.cost}}},
                                     {"final_score", {{"similarity", s_final.similarity}, {"cost", s_final.cost}}}});
                     ++done;

@@ -225,6 +225,7 @@ void RegistrationParams::validate(const std::string& ctx) const {
         bad("vessel_mask_window must be 0..1000 (0: the plain median and MAD)");
     if (!(landmark_prior_weight >= 0) || !(landmark_prior_tolerance_px >= 0)) bad("landmark prior must be >= 0");
     if (!(landmark_world_sd_mm >= 0 && landmark_world_sd_mm <= 20)) bad("landmark_world_sd_mm must be 0..20 (0: off)");
+    if (!(landmark_world_sd_margin >= 0 && landmark_world_sd_margin <= 1)) bad("landmark_world_sd_margin must be 0..1");
     if (!(sample_distance_mm >= 0.1 && sample_distance_mm <= 5)) bad("sample_distance_mm must be 0.1..5");
     if (!(roi_margin_fraction >= 0 && roi_margin_fraction <= 2)) bad("roi_margin_fraction must be 0..2");
     if (outer_ray_stride < 1 || outer_ray_stride > 8) bad("outer_ray_stride must be 1..8 (1: every ray)");
@@ -326,6 +327,8 @@ json to_json(const RegistrationParams& p) {
     j["landmark_prior_tolerance_px"] = p.landmark_prior_tolerance_px;
     j["landmark_prior_expected"] = p.landmark_prior_expected;
     j["landmark_world_sd_mm"] = p.landmark_world_sd_mm;
+    j["landmark_world_sd_by_image"] = p.landmark_world_sd_by_image;
+    j["landmark_world_sd_margin"] = p.landmark_world_sd_margin;
     j["sample_distance_mm"] = p.sample_distance_mm;
     j["depth_along_pivot_ray"] = p.depth_along_pivot_ray;
     j["initial_pose_landmark_moves"] = p.initial_pose_landmark_moves;
@@ -387,6 +390,8 @@ RegistrationParams registration_params_from_json(const json& j, const std::strin
         p.landmark_prior_tolerance_px = j.value("landmark_prior_tolerance_px", p.landmark_prior_tolerance_px);
         p.landmark_prior_expected = j.value("landmark_prior_expected", p.landmark_prior_expected);
         p.landmark_world_sd_mm = j.value("landmark_world_sd_mm", p.landmark_world_sd_mm);
+        p.landmark_world_sd_by_image = j.value("landmark_world_sd_by_image", p.landmark_world_sd_by_image);
+        p.landmark_world_sd_margin = j.value("landmark_world_sd_margin", p.landmark_world_sd_margin);
         p.sample_distance_mm = j.value("sample_distance_mm", p.sample_distance_mm);
         p.depth_along_pivot_ray = j.value("depth_along_pivot_ray", p.depth_along_pivot_ray);
         p.initial_pose_landmark_moves = j.value("initial_pose_landmark_moves", p.initial_pose_landmark_moves);
@@ -465,6 +470,9 @@ json result_to_json(const RegistrationResult& r) {
     if (std::isnan(r.peak_prominence)) j["peak_prominence"] = nullptr;
     else j["peak_prominence"] = r.peak_prominence;
     j["landmarks_weighed_up"] = r.landmarks_weighed_up;
+    j["landmark_prior_widened"] = r.landmark_prior_widened;
+    if (std::isnan(r.landmark_widened_fit_lead)) j["landmark_widened_fit_lead"] = nullptr;
+    else j["landmark_widened_fit_lead"] = r.landmark_widened_fit_lead;
     j["stages"] = json::array();
     for (const auto& s : r.stages)
         j["stages"].push_back({{"name", s.name}, {"start", s.start}, {"fwhm_mm", s.params.fwhm_mm},
@@ -972,13 +980,15 @@ private:
 /// pixels at kPriorReferenceWidthPx.
 class LandmarkPrior {
 public:
-    LandmarkPrior(const PhotoInput& in, const RegistrationParams& p) : in_(in), p_(p), weight_(p.landmark_prior_weight) {
+    /// with_world_sd: the tolerance widened by landmark_world_sd_mm (when that is > 0).
+    LandmarkPrior(const PhotoInput& in, const RegistrationParams& p, bool with_world_sd = true)
+        : in_(in), p_(p), weight_(p.landmark_prior_weight) {
         use_ = p.landmark_prior_weight > 0 && in.landmarks.size() >= 4;
         if (!use_) return;
         const LandmarkFit fit = fit_pose_pnp(in.landmarks, in.camera);
         rms_ref_px_ = fit.rms_px;
         tolerance_px_ = p.landmark_prior_tolerance_px;
-        if (p.landmark_world_sd_mm > 0)
+        if (with_world_sd && p.landmark_world_sd_mm > 0)
             tolerance_px_ += p.landmark_world_sd_mm * landmark_px_per_mm(in.landmarks, in.camera, fit.T_camera_from_world) *
                              double(kPriorReferenceWidthPx) / in.camera.width;
         if (p.landmark_prior_expected) {
@@ -996,6 +1006,8 @@ public:
     bool active() const { return use_; }
     /// The prominence gate weighs the landmarks up for the last round.
     void set_weight(double w) { weight_ = w; }
+    /// Take other's tolerance (the widened one, when the image prefers another landmark fit).
+    void set_tolerance_from(const LandmarkPrior& other) { tolerance_px_ = other.tolerance_px_; }
 
 private:
     const PhotoInput& in_;
@@ -1081,6 +1093,11 @@ RegistrationResult Registration::run(const PhotoInput& in, const Progress* progr
     Pose T0;
     // The landmark fits: the best first, then the others (moves from the best to them become starts).
     std::vector<LandmarkFit> fits;
+    // landmark_world_sd_by_image: the starts are the fits within the plain limit, as without it, and
+    // the fits within the limit widened by the model points' error are screened apart (below).
+    const bool widen_by_image = params_.landmark_world_sd_by_image && params_.landmark_world_sd_mm > 0;
+    const double fits_sd_mm = widen_by_image ? 0.0 : params_.landmark_world_sd_mm;
+    std::vector<LandmarkFit> fits_wide;
     if (in.initial_pose) {
         T0 = *in.initial_pose;
         res.initial_method = "initial_pose";
@@ -1088,11 +1105,14 @@ RegistrationResult Registration::run(const PhotoInput& in, const Progress* progr
         // about it, not a few distinct poses, and the given pose is better evidence of that turn
         // (on the featureless MNI152 photos such starts ended at wrong turns the NMI preferred).
         if (params_.initial_pose_landmark_moves && in.landmarks.size() >= 4 &&
-            landmark_spread_warning(landmark_spread(in.landmarks)).empty())
-            fits = pnp_candidates(in.landmarks, K, params_.landmark_world_sd_mm);
+            landmark_spread_warning(landmark_spread(in.landmarks)).empty()) {
+            fits = pnp_candidates(in.landmarks, K, fits_sd_mm);
+            if (widen_by_image) fits_wide = pnp_candidates(in.landmarks, K, params_.landmark_world_sd_mm);
+        }
     } else {
         if (in.landmarks.size() < 4) throw InputError("landmarks", "needs at least 4 pairs or an initial pose");
-        fits = pnp_candidates(in.landmarks, K, params_.landmark_world_sd_mm);
+        fits = pnp_candidates(in.landmarks, K, fits_sd_mm);
+        if (widen_by_image) fits_wide = pnp_candidates(in.landmarks, K, params_.landmark_world_sd_mm);
         T0 = fits.front().T_camera_from_world;
         res.initial_method = fits.front().method;
     }
@@ -1101,7 +1121,14 @@ RegistrationResult Registration::run(const PhotoInput& in, const Progress* progr
         res.landmark_spread = landmark_spread(in.landmarks);
         if (const std::string w = landmark_spread_warning(res.landmark_spread); !w.empty()) res.warnings.push_back(w);
     }
-    LandmarkPrior prior(in, params_);
+    // With landmark_world_sd_by_image the search runs under the plain prior as without it, and the
+    // landmarks' other fits are also screened under the prior widened by the model points' error;
+    // the best of those is searched on under it, and the final stages widen the prior only when
+    // that candidate wins (below).
+    LandmarkPrior prior(in, params_, !widen_by_image);
+    const LandmarkPrior prior_plain(in, params_, false);
+    const LandmarkPrior prior_widened(in, params_, true);
+    const LandmarkPrior* stage_prior = &prior;  // the prior the stage being run charges
     res.initial_landmark_rms_px = reprojection_rms_px(in.landmarks, K, T0);
 
     Scorer scorer(in, params_, *renderer_);
@@ -1114,6 +1141,14 @@ RegistrationResult Registration::run(const PhotoInput& in, const Progress* progr
         const Pose& F = fits.front().T_camera_from_world;
         const Eigen::Vector3d pivot_F = F.topLeftCorner<3, 3>() * res.pivot_world_mm + F.topRightCorner<3, 1>();
         for (size_t i = 1; i < fits.size(); ++i) starts.push_back(params_between(F, fits[i].T_camera_from_world, pivot_F));
+    }
+    // landmark_world_sd_by_image: the moves to the fits within the widened limit, screened under the
+    // widened prior apart from the starts.
+    std::vector<PoseParams> wide_starts;
+    if (fits_wide.size() > 1 && !fits.empty()) {
+        const Pose& F = fits.front().T_camera_from_world;
+        const Eigen::Vector3d pivot_F = F.topLeftCorner<3, 3>() * res.pivot_world_mm + F.topRightCorner<3, 1>();
+        for (size_t i = 1; i < fits_wide.size(); ++i) wide_starts.push_back(params_between(F, fits_wide[i].T_camera_from_world, pivot_F));
     }
     // Starts from n_plain on are the landmarks' other fits (RegistrationParams::search_keep_fits).
     const size_t n_plain = params_.starts.size();
@@ -1142,11 +1177,13 @@ RegistrationResult Registration::run(const PhotoInput& in, const Progress* progr
     const bool pruned = params_.search_stages.size() > 1 && params_.search_keep > 0;
     // (At most: the landmarks' other fits add search_keep_fits only when the screen drops them all.)
     const int fit_starts = int(starts.size() - n_plain);
-    const int screened = pruned ? std::min(params_.search_keep + std::min(fit_starts, params_.search_keep_fits), int(starts.size()))
-                                : int(starts.size());
+    // (And with landmark_world_sd_by_image: the widened fits screened and the best of them on.)
+    const bool widened_screen = widen_by_image && !wide_starts.empty() && !params_.search_stages.empty();
+    const int screened = (pruned ? std::min(params_.search_keep + std::min(fit_starts, params_.search_keep_fits), int(starts.size()))
+                                 : int(starts.size())) + (widened_screen ? 1 : 0);
     const int finalists = std::min(params_.keep_best, screened);
     for (size_t i = 0; i < params_.search_stages.size(); ++i)
-        total_budget += params_.search_stages[i].max_evaluations * (i == 0 ? int(starts.size()) : screened);
+        total_budget += params_.search_stages[i].max_evaluations * (i == 0 ? int(starts.size() + (widened_screen ? wide_starts.size() : 0)) : screened);
     for (const auto& s : params_.final_stages) total_budget += s.max_evaluations * finalists;
     if (params_.estimate_light)
         for (int round = 1; round < params_.light_rounds; ++round)
@@ -1177,7 +1214,7 @@ RegistrationResult Registration::run(const PhotoInput& in, const Progress* progr
     auto evaluate = [&](const PoseParams& x, const StageParams& st, double& similarity) {
         const Pose T = apply_params(T0, pivot_cam, x);
         similarity = scorer.similarity(T, st);
-        return -similarity + prior(T);
+        return -similarity + (*stage_prior)(T);
     };
 
     // One report per stage, light grid or depth scan: what the trace and `evaluate` read.
@@ -1276,12 +1313,28 @@ RegistrationResult Registration::run(const PhotoInput& in, const Progress* progr
     std::vector<Candidate> candidates;
     auto by_cost = [](const Candidate& a, const Candidate& b) { return a.cost < b.cost; };
     std::vector<int> start_of;  // candidate -> start index, for the stage reports
+    // landmark_world_sd_by_image: the landmarks' other fits screened under the widened prior, and
+    // which candidate (if any) is the best of them searched on under it.
+    std::optional<Candidate> widened_fit;
+    int widened_fit_start = -1;
+    size_t widened_candidate = SIZE_MAX;
     for (size_t s = 0; s < starts.size(); ++s) {
         PoseParams x = starts[s];
         double cost = 0, best_sim = 0;
         if (!params_.search_stages.empty()) std::tie(x, cost) = run_stage(params_.search_stages.front(), int(s), x, best_sim);
         candidates.push_back({x, cost});
         start_of.push_back(int(s));
+    }
+    // (Reported as starts numbered on from the last of the others.)
+    if (widened_screen) {
+        stage_prior = &prior_widened;
+        for (size_t k = 0; k < wide_starts.size(); ++k) {
+            double wide_sim = 0;
+            const int start = int(starts.size() + k);
+            const auto [xw, cw] = run_stage(params_.search_stages.front(), start, wide_starts[k], wide_sim);
+            if (!widened_fit || cw < widened_fit->cost) widened_fit = Candidate{xw, cw}, widened_fit_start = start;
+        }
+        stage_prior = &prior;
     }
     if (params_.search_stages.size() > 1) {
         if (params_.estimate_light && params_.light_after_screen && !params_.final_stages.empty()) {
@@ -1310,14 +1363,52 @@ RegistrationResult Registration::run(const PhotoInput& in, const Progress* progr
             candidates = std::move(kept);
             start_of = std::move(kept_start);
         }
+    }
+    if (widened_fit) {
+        widened_candidate = candidates.size();
+        candidates.push_back(*widened_fit);
+        start_of.push_back(widened_fit_start);
+    }
+    if (params_.search_stages.size() > 1) {
         for (size_t c = 0; c < candidates.size(); ++c) {
             double best_sim = 0;
+            stage_prior = c == widened_candidate ? &prior_widened : &prior;
             for (size_t i = 1; i < params_.search_stages.size(); ++i)
                 std::tie(candidates[c].x, candidates[c].cost) = run_stage(params_.search_stages[i], start_of[c], candidates[c].x, best_sim);
+            stage_prior = &prior;
         }
     }
-    std::stable_sort(candidates.begin(), candidates.end(), by_cost);
-    candidates.resize(std::min<size_t>(candidates.size(), size_t(params_.keep_best)));
+    // landmark_world_sd_by_image: the prior is widened for the final stages when the fit searched
+    // under it beats every other candidate, all charged by the widened prior, by
+    // landmark_world_sd_margin (the image prefers a pose that only the model points' error allows).
+    // Otherwise it is dropped, and the rest goes on exactly as without the option.
+    if (widened_candidate != SIZE_MAX) {
+        std::vector<double> widened_cost(candidates.size());
+        double best_other = 1e300;
+        for (size_t c = 0; c < candidates.size(); ++c) {
+            const Pose T = apply_params(T0, pivot_cam, candidates[c].x);
+            widened_cost[c] = c == widened_candidate ? candidates[c].cost : candidates[c].cost - prior(T) + prior_widened(T);
+            if (c != widened_candidate) best_other = std::min(best_other, widened_cost[c]);
+        }
+        res.landmark_widened_fit_lead = best_other - widened_cost[widened_candidate];
+        res.landmark_prior_widened = res.landmark_widened_fit_lead >= params_.landmark_world_sd_margin;
+        if (res.landmark_prior_widened) {
+            prior.set_tolerance_from(prior_widened);
+            for (size_t c = 0; c < candidates.size(); ++c) candidates[c].cost = widened_cost[c];
+        } else {
+            candidates.erase(candidates.begin() + std::ptrdiff_t(widened_candidate));
+            start_of.erase(start_of.begin() + std::ptrdiff_t(widened_candidate));
+        }
+    }
+    // The finalists, best first, and the start each came from.
+    std::vector<size_t> rank(candidates.size());
+    std::iota(rank.begin(), rank.end(), size_t(0));
+    std::stable_sort(rank.begin(), rank.end(), [&](size_t a, size_t b) { return by_cost(candidates[a], candidates[b]); });
+    rank.resize(std::min<size_t>(rank.size(), size_t(params_.keep_best)));
+    std::vector<Candidate> ranked;
+    std::vector<int> finalist_start;
+    for (size_t i : rank) ranked.push_back(candidates[i]), finalist_start.push_back(start_of[i]);
+    candidates = std::move(ranked);
 
     // Final search and re-optimisation of the best few.
     Candidate best = candidates.front();
@@ -1346,9 +1437,17 @@ RegistrationResult Registration::run(const PhotoInput& in, const Progress* progr
     };
     if (!params_.final_stages.empty()) {
         const int rounds = params_.estimate_light ? params_.light_rounds : 1;
+        size_t best_index = 0;  // the finalist that won the first round
         for (int round = 0; round < rounds; ++round) {
             const bool own_light = params_.estimate_light && params_.light_per_finalist && round == 0;
             if (params_.estimate_light && !own_light) estimate_light(round == 0 ? candidates.front().x : best.x, 0);
+            // landmark_world_sd_by_image: the widened prior stays for the last round only when the
+            // finalist that won came from another landmark fit; a winner from a plain start lies in
+            // the landmarks' own basin, where the plain prior holds depth and tilt.
+            if (round > 0 && res.landmark_prior_widened && size_t(finalist_start[best_index]) < n_plain) {
+                res.landmark_prior_widened = false;
+                prior.set_tolerance_from(prior_plain);
+            }
             if (round > 0) candidates = {best};  // later rounds refine the winner only
             best.cost = 1e300;
             Scorer::LightSetting best_light;
@@ -1363,6 +1462,7 @@ RegistrationResult Registration::run(const PhotoInput& in, const Progress* progr
                     best = {x, cost};
                     best_sim = s;
                     best_light = scorer.light();
+                    if (round == 0) best_index = c;
                 }
             }
             // The winner's light: the one the result reports and its similarity is scored with

@@ -107,6 +107,16 @@ struct RegistrationParams {
     /// tolerance and to the RMS limit under which other landmark fits become starts. 0: pixels
     /// only (opt-in since the thirty-fourth session; docs/registration.md).
     double landmark_world_sd_mm = 0.0;
+    /// With landmark_world_sd_mm > 0: the starts and the search stay as with 0, and the landmarks'
+    /// fits within the limit widened by that error are screened apart under the widened prior; the
+    /// best of them is searched on under it. The final stages widen the prior only when that
+    /// candidate beats every other, all charged by the widened prior, by landmark_world_sd_margin
+    /// (the image prefers a pose that only the model points' error allows), and the last round only
+    /// when the winner of the final stages came from a landmark fit
+    /// (RegistrationResult::landmark_prior_widened). Otherwise the run is the plain prior's.
+    bool landmark_world_sd_by_image = false;
+    /// The cost margin that the widened fit has to win by (NMI units; docs/registration.md).
+    double landmark_world_sd_margin = 0.02;
     double sample_distance_mm = 1.0;
     /// The optimiser's translation frame: false, the camera's axes (tz along the optical axis);
     /// true, tz along the line of sight through the pivot and tx, ty across it, so a depth step
@@ -269,6 +279,12 @@ struct RegistrationResult {
     /// gate so that the landmarks were weighed up for the last round.
     double peak_prominence = std::numeric_limits<double>::quiet_NaN();
     bool landmarks_weighed_up = false;
+    /// The prior was widened by landmark_world_sd_mm (RegistrationParams::landmark_world_sd_by_image).
+    bool landmark_prior_widened = false;
+    /// With landmark_world_sd_by_image: by how much the fit searched under the widened prior beat
+    /// the best other candidate (both charged by it; compared with landmark_world_sd_margin). NaN
+    /// when there was no such fit.
+    double landmark_widened_fit_lead = std::numeric_limits<double>::quiet_NaN();
 };
 
 nlohmann::json result_to_json(const RegistrationResult& r);
