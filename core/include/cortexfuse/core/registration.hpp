@@ -114,6 +114,7 @@ struct RegistrationParams {
     /// (the image prefers a pose that only the model points' error allows), and the last round only
     /// when the winner of the final stages came from a landmark fit
     /// (RegistrationResult::landmark_prior_widened). Otherwise the run is the plain prior's.
+    /// (Registration::score, which knows no run, charges by the widened prior.)
     bool landmark_world_sd_by_image = false;
     /// The cost margin that the widened fit has to win by (NMI units; docs/registration.md).
     double landmark_world_sd_margin = 0.02;
