@@ -980,34 +980,36 @@ private:
 /// pixels at kPriorReferenceWidthPx.
 class LandmarkPrior {
 public:
-    /// with_world_sd: the tolerance widened by landmark_world_sd_mm (when that is > 0).
-    LandmarkPrior(const PhotoInput& in, const RegistrationParams& p, bool with_world_sd = true)
-        : in_(in), p_(p), weight_(p.landmark_prior_weight) {
+    /// The tolerance is widened by landmark_world_sd_mm (when that is > 0) unless set_widened(false).
+    LandmarkPrior(const PhotoInput& in, const RegistrationParams& p) : in_(in), p_(p), weight_(p.landmark_prior_weight) {
         use_ = p.landmark_prior_weight > 0 && in.landmarks.size() >= 4;
         if (!use_) return;
         const LandmarkFit fit = fit_pose_pnp(in.landmarks, in.camera);
         rms_ref_px_ = fit.rms_px;
         tolerance_px_ = p.landmark_prior_tolerance_px;
-        if (with_world_sd && p.landmark_world_sd_mm > 0)
-            tolerance_px_ += p.landmark_world_sd_mm * landmark_px_per_mm(in.landmarks, in.camera, fit.T_camera_from_world) *
+        if (p.landmark_world_sd_mm > 0)
+            widening_px_ = p.landmark_world_sd_mm * landmark_px_per_mm(in.landmarks, in.camera, fit.T_camera_from_world) *
                              double(kPriorReferenceWidthPx) / in.camera.width;
         if (p.landmark_prior_expected) {
             const double n = double(in.landmarks.size());
             rms_ref_px_ *= std::sqrt(2 * n / std::max(1.0, 2 * n - 6));
         }
     }
-    double operator()(const Pose& T) const {
+    double operator()(const Pose& T) const { return charge(T, widened_); }
+    /// The charge with the tolerance widened by the model points' error or not, whatever is set.
+    double charge(const Pose& T, bool widened) const {
         if (!use_) return 0;
         const double to_ref = double(kPriorReferenceWidthPx) / in_.camera.width;
         const double excess = std::max(0.0, (reprojection_rms_px(in_.landmarks, in_.camera, T) - rms_ref_px_) * to_ref -
-                                                tolerance_px_);
+                                                (tolerance_px_ + (widened ? widening_px_ : 0.0)));
         return weight_ * excess * excess;
     }
     bool active() const { return use_; }
     /// The prominence gate weighs the landmarks up for the last round.
     void set_weight(double w) { weight_ = w; }
-    /// Take other's tolerance (the widened one, when the image prefers another landmark fit).
-    void set_tolerance_from(const LandmarkPrior& other) { tolerance_px_ = other.tolerance_px_; }
+    /// landmark_world_sd_by_image: the model points' error widens the tolerance only where the
+    /// image prefers another landmark fit.
+    void set_widened(bool widened) { widened_ = widened; }
 
 private:
     const PhotoInput& in_;
@@ -1015,7 +1017,9 @@ private:
     double weight_;
     bool use_ = false;
     double rms_ref_px_ = 0;  // the fit's rms, or the truth's expected rms
-    double tolerance_px_ = 0;  // at kPriorReferenceWidthPx, with the model points' error
+    double tolerance_px_ = 0;  // at kPriorReferenceWidthPx
+    double widening_px_ = 0;   // the model points' error, at kPriorReferenceWidthPx
+    bool widened_ = true;
 };
 
 }  // namespace
@@ -1125,31 +1129,28 @@ RegistrationResult Registration::run(const PhotoInput& in, const Progress* progr
     // landmarks' other fits are also screened under the prior widened by the model points' error;
     // the best of those is searched on under it, and the final stages widen the prior only when
     // that candidate wins (below).
-    LandmarkPrior prior(in, params_, !widen_by_image);
-    const LandmarkPrior prior_plain(in, params_, false);
-    const LandmarkPrior prior_widened(in, params_, true);
-    const LandmarkPrior* stage_prior = &prior;  // the prior the stage being run charges
+    LandmarkPrior prior(in, params_);
+    prior.set_widened(!widen_by_image);
+    bool stage_widened = false;  // the stage being run charges by the widened prior, whatever prior is set to
     res.initial_landmark_rms_px = reprojection_rms_px(in.landmarks, K, T0);
 
     Scorer scorer(in, params_, *renderer_);
     res.pivot_world_mm = scorer.find_pivot_world(T0);
     const Eigen::Vector3d pivot_cam = scorer.set_pivot(res.pivot_world_mm, T0);
     std::vector<PoseParams> starts = params_.starts;
-    // Each other fit as a move about the pivot from the best one; from the landmarks alone the best
-    // fit is T0, and the move takes T0 to that fit exactly.
-    if (fits.size() > 1) {
+    // Each other fit as a move about the pivot from the best one (fits.front()); from the landmarks
+    // alone the best fit is T0, and the move takes T0 to that fit exactly.
+    auto moves_to_others = [&](const std::vector<LandmarkFit>& fit_list, std::vector<PoseParams>& out) {
+        if (fit_list.size() < 2 || fits.empty()) return;
         const Pose& F = fits.front().T_camera_from_world;
         const Eigen::Vector3d pivot_F = F.topLeftCorner<3, 3>() * res.pivot_world_mm + F.topRightCorner<3, 1>();
-        for (size_t i = 1; i < fits.size(); ++i) starts.push_back(params_between(F, fits[i].T_camera_from_world, pivot_F));
-    }
+        for (size_t i = 1; i < fit_list.size(); ++i) out.push_back(params_between(F, fit_list[i].T_camera_from_world, pivot_F));
+    };
+    moves_to_others(fits, starts);
     // landmark_world_sd_by_image: the moves to the fits within the widened limit, screened under the
     // widened prior apart from the starts.
     std::vector<PoseParams> wide_starts;
-    if (fits_wide.size() > 1 && !fits.empty()) {
-        const Pose& F = fits.front().T_camera_from_world;
-        const Eigen::Vector3d pivot_F = F.topLeftCorner<3, 3>() * res.pivot_world_mm + F.topRightCorner<3, 1>();
-        for (size_t i = 1; i < fits_wide.size(); ++i) wide_starts.push_back(params_between(F, fits_wide[i].T_camera_from_world, pivot_F));
-    }
+    moves_to_others(fits_wide, wide_starts);
     // Starts from n_plain on are the landmarks' other fits (RegistrationParams::search_keep_fits).
     const size_t n_plain = params_.starts.size();
     // The optimiser's translation axes (columns, camera frame): the camera's, or depth along the
@@ -1214,7 +1215,7 @@ RegistrationResult Registration::run(const PhotoInput& in, const Progress* progr
     auto evaluate = [&](const PoseParams& x, const StageParams& st, double& similarity) {
         const Pose T = apply_params(T0, pivot_cam, x);
         similarity = scorer.similarity(T, st);
-        return -similarity + (*stage_prior)(T);
+        return -similarity + (stage_widened ? prior.charge(T, true) : prior(T));
     };
 
     // One report per stage, light grid or depth scan: what the trace and `evaluate` read.
@@ -1327,14 +1328,14 @@ RegistrationResult Registration::run(const PhotoInput& in, const Progress* progr
     }
     // (Reported as starts numbered on from the last of the others.)
     if (widened_screen) {
-        stage_prior = &prior_widened;
+        stage_widened = true;
         for (size_t k = 0; k < wide_starts.size(); ++k) {
             double wide_sim = 0;
             const int start = int(starts.size() + k);
             const auto [xw, cw] = run_stage(params_.search_stages.front(), start, wide_starts[k], wide_sim);
             if (!widened_fit || cw < widened_fit->cost) widened_fit = Candidate{xw, cw}, widened_fit_start = start;
         }
-        stage_prior = &prior;
+        stage_widened = false;
     }
     if (params_.search_stages.size() > 1) {
         if (params_.estimate_light && params_.light_after_screen && !params_.final_stages.empty()) {
@@ -1372,10 +1373,10 @@ RegistrationResult Registration::run(const PhotoInput& in, const Progress* progr
     if (params_.search_stages.size() > 1) {
         for (size_t c = 0; c < candidates.size(); ++c) {
             double best_sim = 0;
-            stage_prior = c == widened_candidate ? &prior_widened : &prior;
+            stage_widened = c == widened_candidate;
             for (size_t i = 1; i < params_.search_stages.size(); ++i)
                 std::tie(candidates[c].x, candidates[c].cost) = run_stage(params_.search_stages[i], start_of[c], candidates[c].x, best_sim);
-            stage_prior = &prior;
+            stage_widened = false;
         }
     }
     // landmark_world_sd_by_image: the prior is widened for the final stages when the fit searched
@@ -1387,13 +1388,13 @@ RegistrationResult Registration::run(const PhotoInput& in, const Progress* progr
         double best_other = 1e300;
         for (size_t c = 0; c < candidates.size(); ++c) {
             const Pose T = apply_params(T0, pivot_cam, candidates[c].x);
-            widened_cost[c] = c == widened_candidate ? candidates[c].cost : candidates[c].cost - prior(T) + prior_widened(T);
+            widened_cost[c] = c == widened_candidate ? candidates[c].cost : candidates[c].cost - prior(T) + prior.charge(T, true);
             if (c != widened_candidate) best_other = std::min(best_other, widened_cost[c]);
         }
         res.landmark_widened_fit_lead = best_other - widened_cost[widened_candidate];
         res.landmark_prior_widened = res.landmark_widened_fit_lead >= params_.landmark_world_sd_margin;
         if (res.landmark_prior_widened) {
-            prior.set_tolerance_from(prior_widened);
+            prior.set_widened(true);
             for (size_t c = 0; c < candidates.size(); ++c) candidates[c].cost = widened_cost[c];
         } else {
             candidates.erase(candidates.begin() + std::ptrdiff_t(widened_candidate));
@@ -1446,7 +1447,7 @@ RegistrationResult Registration::run(const PhotoInput& in, const Progress* progr
             // the landmarks' own basin, where the plain prior holds depth and tilt.
             if (round > 0 && res.landmark_prior_widened && size_t(finalist_start[best_index]) < n_plain) {
                 res.landmark_prior_widened = false;
-                prior.set_tolerance_from(prior_plain);
+                prior.set_widened(false);
             }
             if (round > 0) candidates = {best};  // later rounds refine the winner only
             best.cost = 1e300;

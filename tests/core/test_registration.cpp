@@ -57,6 +57,15 @@ RegistrationParams small_params() {
     return p;
 }
 
+// The landmarks' model points moved off_mm each, in a direction of its own (turned by turn), as a
+// picking error on the MRI would.
+void move_model_points(std::vector<Landmark>& lms, double off_mm, int turn = 0) {
+    for (size_t i = 0; i < lms.size(); ++i) {
+        const double a = 2.4 * double(i) + 0.7 * turn;
+        lms[i].world_mm += off_mm * Eigen::Vector3d(std::cos(a), std::sin(a), (i % 2) ? 0.5 : -0.5).normalized();
+    }
+}
+
 }  // namespace
 
 TEST(Registration, RunsAllConfiguredStagesAndReturnsARigidPose) {
@@ -1094,10 +1103,7 @@ TEST(Registration, TheModelPointsErrorWidensTheLandmarkPriorsTolerance) {
     PhotoInput in = f.c.photo;
     // Each model point 5 mm off, in a direction of its own (2 mm left the truth's excess at 8.1
     // px in the release build but 2.8 in the sanitized one, under the widened tolerance).
-    for (size_t i = 0; i < in.landmarks.size(); ++i) {
-        const double a = 2.4 * double(i);
-        in.landmarks[i].world_mm += 5.0 * Eigen::Vector3d(std::cos(a), std::sin(a), (i % 2) ? 0.5 : -0.5).normalized();
-    }
+    move_model_points(in.landmarks, 5.0);
     const Intrinsics& K = in.camera;
     const LandmarkFit fit = fit_pose_pnp(in.landmarks, K);
     const double to_ref = 375.0 / K.width;
@@ -1143,10 +1149,7 @@ TEST(Registration, TheModelPointsErrorByImageKeepsThePlainPriorWhereNoOtherLandm
     PhotoInput given = f.c.photo;
     // Model points 5 mm off (as in the test above), so that the prior charges the poses near the
     // truth and its width changes where the final stages end.
-    for (size_t i = 0; i < given.landmarks.size(); ++i) {
-        const double a = 2.4 * double(i);
-        given.landmarks[i].world_mm += 5.0 * Eigen::Vector3d(std::cos(a), std::sin(a), (i % 2) ? 0.5 : -0.5).normalized();
-    }
+    move_model_points(given.landmarks, 5.0);
     given.initial_pose = f.c.spec.truth->T_camera_from_world;
     const RegistrationResult plain = Registration(f.c.volume, f.c.mask, p).run(given);
     // Wide enough that the widened prior charges nothing near the truth.
@@ -1191,10 +1194,7 @@ TEST(Registration, TheWidenedFitChangesTheRunOnlyWhenItLeadsByTheMargin) {
     for (int turn = 0; turn < 12 && !found; ++turn)
         for (const double off_mm : {3.0, 5.0, 7.0}) {
             PhotoInput moved = f.c.photo;
-            for (size_t i = 0; i < moved.landmarks.size(); ++i) {
-                const double a = 2.4 * double(i) + 0.7 * turn;
-                moved.landmarks[i].world_mm += off_mm * Eigen::Vector3d(std::cos(a), std::sin(a), (i % 2) ? 0.5 : -0.5).normalized();
-            }
+            move_model_points(moved.landmarks, off_mm, turn);
             if (pnp_candidates(moved.landmarks, moved.camera, sd_mm).size() <= pnp_candidates(moved.landmarks, moved.camera).size())
                 continue;
             RegistrationResult r = Registration(f.c.volume, f.c.mask, p).run(moved);
