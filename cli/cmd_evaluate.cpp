@@ -276,6 +276,8 @@ void add_evaluate(CLI::App& app) {
                                     {"landmarks_weighed_up", r.landmarks_weighed_up},
                                     {"landmark_prior_widened", r.landmark_prior_widened},
                                     {"landmark_widened_fit_lead", std::isnan(r.landmark_widened_fit_lead) ? json(nullptr) : json(r.landmark_widened_fit_lead)},
+                                    {"landmark_plain_fit_peak_apart_mm", std::isnan(r.landmark_plain_fit_peak_apart_mm) ? json(nullptr) : json(r.landmark_plain_fit_peak_apart_mm)},
+                                    {"landmark_widened_fit_prominence", std::isnan(r.landmark_widened_fit_prominence) ? json(nullptr) : json(r.landmark_widened_fit_prominence)},
                                     {"truth_score", {{"similarity", s_truth.similarity}, {"cost", s_truth.cost}}},
                                     {"final_score", {{"similarity", s_final.similarity}, {"cost", s_final.cost}}}});
                     ++done;

@@ -226,6 +226,10 @@ void RegistrationParams::validate(const std::string& ctx) const {
     if (!(landmark_prior_weight >= 0) || !(landmark_prior_tolerance_px >= 0)) bad("landmark prior must be >= 0");
     if (!(landmark_world_sd_mm >= 0 && landmark_world_sd_mm <= 20)) bad("landmark_world_sd_mm must be 0..20 (0: off)");
     if (!(landmark_world_sd_margin >= 0 && landmark_world_sd_margin <= 1)) bad("landmark_world_sd_margin must be 0..1");
+    if (!(landmark_world_sd_peak_apart_mm >= 0 && landmark_world_sd_peak_apart_mm <= prominence_sweep_mm))
+        bad("landmark_world_sd_peak_apart_mm must be 0..prominence_sweep_mm (0: off)");
+    if (!(landmark_world_sd_min_prominence >= 0 && landmark_world_sd_min_prominence <= 1))
+        bad("landmark_world_sd_min_prominence must be 0..1 (0: off)");
     if (!(sample_distance_mm >= 0.1 && sample_distance_mm <= 5)) bad("sample_distance_mm must be 0.1..5");
     if (!(roi_margin_fraction >= 0 && roi_margin_fraction <= 2)) bad("roi_margin_fraction must be 0..2");
     if (outer_ray_stride < 1 || outer_ray_stride > 8) bad("outer_ray_stride must be 1..8 (1: every ray)");
@@ -329,6 +333,8 @@ json to_json(const RegistrationParams& p) {
     j["landmark_world_sd_mm"] = p.landmark_world_sd_mm;
     j["landmark_world_sd_by_image"] = p.landmark_world_sd_by_image;
     j["landmark_world_sd_margin"] = p.landmark_world_sd_margin;
+    j["landmark_world_sd_peak_apart_mm"] = p.landmark_world_sd_peak_apart_mm;
+    j["landmark_world_sd_min_prominence"] = p.landmark_world_sd_min_prominence;
     j["sample_distance_mm"] = p.sample_distance_mm;
     j["depth_along_pivot_ray"] = p.depth_along_pivot_ray;
     j["initial_pose_landmark_moves"] = p.initial_pose_landmark_moves;
@@ -392,6 +398,8 @@ RegistrationParams registration_params_from_json(const json& j, const std::strin
         p.landmark_world_sd_mm = j.value("landmark_world_sd_mm", p.landmark_world_sd_mm);
         p.landmark_world_sd_by_image = j.value("landmark_world_sd_by_image", p.landmark_world_sd_by_image);
         p.landmark_world_sd_margin = j.value("landmark_world_sd_margin", p.landmark_world_sd_margin);
+        p.landmark_world_sd_peak_apart_mm = j.value("landmark_world_sd_peak_apart_mm", p.landmark_world_sd_peak_apart_mm);
+        p.landmark_world_sd_min_prominence = j.value("landmark_world_sd_min_prominence", p.landmark_world_sd_min_prominence);
         p.sample_distance_mm = j.value("sample_distance_mm", p.sample_distance_mm);
         p.depth_along_pivot_ray = j.value("depth_along_pivot_ray", p.depth_along_pivot_ray);
         p.initial_pose_landmark_moves = j.value("initial_pose_landmark_moves", p.initial_pose_landmark_moves);
@@ -471,8 +479,10 @@ json result_to_json(const RegistrationResult& r) {
     else j["peak_prominence"] = r.peak_prominence;
     j["landmarks_weighed_up"] = r.landmarks_weighed_up;
     j["landmark_prior_widened"] = r.landmark_prior_widened;
-    if (std::isnan(r.landmark_widened_fit_lead)) j["landmark_widened_fit_lead"] = nullptr;
-    else j["landmark_widened_fit_lead"] = r.landmark_widened_fit_lead;
+    auto number_or_null = [](double v) { return std::isnan(v) ? json(nullptr) : json(v); };
+    j["landmark_widened_fit_lead"] = number_or_null(r.landmark_widened_fit_lead);
+    j["landmark_plain_fit_peak_apart_mm"] = number_or_null(r.landmark_plain_fit_peak_apart_mm);
+    j["landmark_widened_fit_prominence"] = number_or_null(r.landmark_widened_fit_prominence);
     j["stages"] = json::array();
     for (const auto& s : r.stages)
         j["stages"].push_back({{"name", s.name}, {"start", s.start}, {"fwhm_mm", s.params.fwhm_mm},
@@ -1208,6 +1218,11 @@ RegistrationResult Registration::run(const PhotoInput& in, const Progress* progr
         total_budget += 2 * params_.prominence_sweep_steps;
         for (const auto& s : last_round) total_budget += s.max_evaluations;
     }
+    // landmark_world_sd_by_image's witnesses: a sweep each, counted whether or not the margin is met.
+    const bool witnesses = widened_screen && !params_.final_stages.empty();
+    const bool witness_apart = witnesses && params_.landmark_world_sd_peak_apart_mm > 0;
+    const bool witness_prominence = witnesses && params_.landmark_world_sd_min_prominence > 0;
+    total_budget += (int(witness_apart) + int(witness_prominence)) * 2 * params_.prominence_sweep_steps;
     int evals_done = 0;
     double best_sim_overall = -1e300;
 
@@ -1379,6 +1394,39 @@ RegistrationResult Registration::run(const PhotoInput& in, const Progress* progr
             stage_widened = false;
         }
     }
+    // The similarity swept across a candidate in tx and ty, as the prominence gate sweeps (the
+    // first final stage's size and blur, a headlight): the peaks' prominence and their distance
+    // from the candidate, each averaged over the two axes.
+    struct Sweep2 {
+        double prominence = 0, peak_apart_mm = 0;
+    };
+    auto sweep_tx_ty = [&](const PoseParams& x, const char* name, int start) {
+        const auto t0 = Clock::now();
+        const StageParams& st = params_.final_stages.front();
+        const auto light = scorer.light();
+        scorer.set_light({});
+        const Pose T = apply_params(T0, pivot_cam, x);
+        const Eigen::Vector3d pivot_T = T.topLeftCorner<3, 3>() * res.pivot_world_mm + T.topRightCorner<3, 1>();
+        const int stage_index = int(res.stages.size());
+        Sweep2 out;
+        double peak = -1e300;
+        for (int p : {3, 4}) {
+            std::vector<double> xs, ys;
+            sweep_axis(scorer, T, pivot_T, st, p, params_.prominence_sweep_mm, params_.prominence_sweep_steps, xs, ys);
+            for (double s : ys) {
+                ++evals_done;
+                res.trace.push_back({evals_done, stage_index, s, -s});
+            }
+            const auto top = std::max_element(ys.begin(), ys.end());
+            peak = std::max(peak, *top);
+            out.prominence += peak_prominence(xs, ys) / 2;
+            out.peak_apart_mm += std::abs(xs[size_t(top - ys.begin())]) / 2;
+            if (progress) (*progress)(name, std::min(1.0, double(evals_done) / std::max(1, total_budget)));
+        }
+        scorer.set_light(light);
+        report(name, start, st, peak, -peak, 2 * params_.prominence_sweep_steps, t0, T);
+        return out;
+    };
     // landmark_world_sd_by_image: the prior is widened for the final stages when the fit searched
     // under it beats every other candidate, all charged by the widened prior, by
     // landmark_world_sd_margin (the image prefers a pose that only the model points' error allows).
@@ -1393,6 +1441,24 @@ RegistrationResult Registration::run(const PhotoInput& in, const Progress* progr
         }
         res.landmark_widened_fit_lead = best_other - widened_cost[widened_candidate];
         res.landmark_prior_widened = res.landmark_widened_fit_lead >= params_.landmark_world_sd_margin;
+        // The photo's own witnesses (RegistrationParams::landmark_world_sd_peak_apart_mm and
+        // _min_prominence): a lead alone is noise where the photo pins the pose weakly.
+        if (res.landmark_prior_widened && (witness_apart || witness_prominence)) {
+            if (cancel) cancel->throw_if_cancelled();
+            size_t best_plain = SIZE_MAX;
+            for (size_t c = 0; c < candidates.size(); ++c)
+                if (c != widened_candidate && (best_plain == SIZE_MAX || widened_cost[c] < widened_cost[best_plain])) best_plain = c;
+            if (witness_apart && best_plain != SIZE_MAX) {
+                const Sweep2 s = sweep_tx_ty(candidates[best_plain].x, "witness-peak-apart", start_of[best_plain]);
+                res.landmark_plain_fit_peak_apart_mm = s.peak_apart_mm;
+                if (s.peak_apart_mm < params_.landmark_world_sd_peak_apart_mm) res.landmark_prior_widened = false;
+            }
+            if (witness_prominence && res.landmark_prior_widened) {
+                const Sweep2 s = sweep_tx_ty(candidates[widened_candidate].x, "witness-prominence", start_of[widened_candidate]);
+                res.landmark_widened_fit_prominence = s.prominence;
+                if (s.prominence < params_.landmark_world_sd_min_prominence) res.landmark_prior_widened = false;
+            }
+        }
         if (res.landmark_prior_widened) {
             prior.set_widened(true);
             for (size_t c = 0; c < candidates.size(); ++c) candidates[c].cost = widened_cost[c];
@@ -1477,29 +1543,8 @@ RegistrationResult Registration::run(const PhotoInput& in, const Progress* progr
     // The prominence gate (RegistrationParams::prominence_gate): does the photo pin the winner?
     if (gate) {
         if (cancel) cancel->throw_if_cancelled();
-        const auto t0 = Clock::now();
-        const StageParams& st = params_.final_stages.front();
-        const auto light = scorer.light();
         // A headlight, as the threshold was measured (cortexfuse landscape, twenty-first session).
-        scorer.set_light({});
-        const Pose T_best = apply_params(T0, pivot_cam, best.x);
-        const Eigen::Vector3d pivot_best = T_best.topLeftCorner<3, 3>() * res.pivot_world_mm + T_best.topRightCorner<3, 1>();
-        const int stage_index = int(res.stages.size());
-        double sum = 0, peak = -1e300;
-        for (int p : {3, 4}) {
-            std::vector<double> xs, ys;
-            sweep_axis(scorer, T_best, pivot_best, st, p, params_.prominence_sweep_mm, params_.prominence_sweep_steps, xs, ys);
-            for (double s : ys) {
-                ++evals_done;
-                res.trace.push_back({evals_done, stage_index, s, -s});
-                peak = std::max(peak, s);
-            }
-            sum += peak_prominence(xs, ys);
-            if (progress) (*progress)("prominence", std::min(1.0, double(evals_done) / std::max(1, total_budget)));
-        }
-        scorer.set_light(light);
-        res.peak_prominence = sum / 2;
-        report("prominence", 0, st, peak, -peak, 2 * params_.prominence_sweep_steps, t0, T_best);
+        res.peak_prominence = sweep_tx_ty(best.x, "prominence", 0).prominence;
         if (res.peak_prominence < params_.prominence_gate) {
             if (cancel) cancel->throw_if_cancelled();
             res.landmarks_weighed_up = true;

@@ -1175,15 +1175,21 @@ TEST(Registration, TheModelPointsErrorByImageKeepsThePlainPriorWhereNoOtherLandm
 
 // landmark_world_sd_by_image with the search: the landmarks' fits within the widened limit are
 // screened under the widened prior apart from the starts, and the best of them is searched on
-// under it. Unless it leads every other candidate by landmark_world_sd_margin, the run is the
-// plain prior's to the bit; when it does, the final stages run under the widened prior.
-TEST(Registration, TheWidenedFitChangesTheRunOnlyWhenItLeadsByTheMargin) {
+// under it. Unless it leads every other candidate by landmark_world_sd_margin and the photo's
+// witnesses (landmark_world_sd_peak_apart_mm, _min_prominence) hold, the run is the plain prior's
+// to the bit; when they do, the final stages run under the widened prior.
+TEST(Registration, TheWidenedFitChangesTheRunOnlyWhenItLeadsByTheMarginAndThePhotoWitnessesIt) {
     const Fixture& f = fixture();
     const double sd_mm = 6.0;
     RegistrationParams p = small_params();
     p.landmark_world_sd_mm = sd_mm;
     p.landmark_world_sd_by_image = true;
     p.landmark_world_sd_margin = 1.0;  // out of reach
+    // The photo's witnesses (below) off until they are tested.
+    EXPECT_EQ(p.landmark_world_sd_peak_apart_mm, 2.5);
+    EXPECT_EQ(p.landmark_world_sd_min_prominence, 0.45);
+    p.landmark_world_sd_peak_apart_mm = 0;
+    p.landmark_world_sd_min_prominence = 0;
     // The model points moved off, each its own way, so that the widened limit lets in fits that the
     // plain one does not and the widened fit leads. The fixture's photo differs between the release
     // and the sanitized builds, so the first of 36 such moves (12 turns, 3, 5 or 7 mm) that does so
@@ -1231,5 +1237,61 @@ TEST(Registration, TheWidenedFitChangesTheRunOnlyWhenItLeadsByTheMargin) {
         nlohmann::json b = j["parameters"];
         b["landmark_world_sd_margin"] = bad;
         EXPECT_THROW(registration_params_from_json(b, "params"), InputError) << bad;
+    }
+    EXPECT_TRUE(std::isnan(widened.landmark_plain_fit_peak_apart_mm));  // witnesses off: not swept
+    EXPECT_TRUE(std::isnan(widened.landmark_widened_fit_prominence));
+
+    // The witnesses, each swept only once the margin is met. Out of reach, each refuses the widened
+    // prior: the run is the plain prior's to the bit, in one sweep's more renders.
+    const int sweep_renders = 2 * p.prominence_sweep_steps;
+    p.landmark_world_sd_peak_apart_mm = p.prominence_sweep_mm;  // the peak at the sweep's ends on both axes
+    const RegistrationResult apart_refused = Registration(f.c.volume, f.c.mask, p).run(in);
+    const double apart_mm = apart_refused.landmark_plain_fit_peak_apart_mm;
+    ASSERT_FALSE(std::isnan(apart_mm));
+    EXPECT_GE(apart_mm, 0.0);
+    EXPECT_LT(apart_mm, p.prominence_sweep_mm);
+    EXPECT_TRUE(std::isnan(apart_refused.landmark_widened_fit_prominence)) << "refused before the second sweep";
+    EXPECT_FALSE(apart_refused.landmark_prior_widened);
+    EXPECT_EQ(apart_refused.T_camera_from_world, plain.T_camera_from_world);
+    EXPECT_EQ(apart_refused.similarity, plain.similarity);
+    EXPECT_EQ(apart_refused.evaluations, held.evaluations + sweep_renders);
+    p.landmark_world_sd_peak_apart_mm = 0;
+    p.landmark_world_sd_min_prominence = 1.0;  // the sweep's rivals 3 mm and more away always stand above its low
+    const RegistrationResult prominence_refused = Registration(f.c.volume, f.c.mask, p).run(in);
+    const double prominence = prominence_refused.landmark_widened_fit_prominence;
+    ASSERT_FALSE(std::isnan(prominence));
+    EXPECT_GT(prominence, 0.0);
+    EXPECT_LT(prominence, 1.0);
+    std::printf("the photo's peak %.2f mm from the plain fit; the widened fit's prominence %.3f\n", apart_mm, prominence);
+    EXPECT_TRUE(std::isnan(prominence_refused.landmark_plain_fit_peak_apart_mm));
+    EXPECT_EQ(prominence_refused.T_camera_from_world, plain.T_camera_from_world);
+    EXPECT_EQ(prominence_refused.evaluations, held.evaluations + sweep_renders);
+    // Met (at the values just measured), they let the widened run be, to the bit: the sweeps leave
+    // the scorer as they found it. The bar counts both sweeps.
+    p.landmark_world_sd_peak_apart_mm = apart_mm > 0 ? apart_mm : 0.0;  // (0: that witness off)
+    p.landmark_world_sd_min_prominence = prominence;
+    fractions.clear();
+    const RegistrationResult witnessed = Registration(f.c.volume, f.c.mask, p).run(in, &progress);
+    for (size_t i = 1; i < fractions.size(); ++i) EXPECT_GE(fractions[i], fractions[i - 1]) << "report " << i;
+    for (size_t i = 0; i + 1 < fractions.size(); ++i) EXPECT_LT(fractions[i], 1.0) << "report " << i;
+    EXPECT_EQ(witnessed.T_camera_from_world, widened.T_camera_from_world);
+    EXPECT_EQ(witnessed.similarity, widened.similarity);
+    EXPECT_EQ(witnessed.landmark_widened_fit_prominence, prominence);
+    EXPECT_EQ(witnessed.evaluations, widened.evaluations + (apart_mm > 0 ? 2 : 1) * sweep_renders);
+    auto sweeps_named = [](const RegistrationResult& r, const std::string& name) {
+        return std::count_if(r.stages.begin(), r.stages.end(), [&](const StageReport& s) { return s.name == name; });
+    };
+    EXPECT_EQ(sweeps_named(apart_refused, "witness-peak-apart"), 1);
+    EXPECT_EQ(sweeps_named(apart_refused, "witness-prominence"), 0);
+    EXPECT_EQ(sweeps_named(witnessed, "witness-prominence"), 1);
+    const nlohmann::json jw = result_to_json(witnessed);
+    EXPECT_EQ(jw["landmark_widened_fit_prominence"], prominence);
+    EXPECT_EQ(registration_params_from_json(jw["parameters"], "params").landmark_world_sd_min_prominence, prominence);
+    for (const auto& [field, bad] : std::vector<std::pair<std::string, double>>{
+             {"landmark_world_sd_peak_apart_mm", -1}, {"landmark_world_sd_peak_apart_mm", p.prominence_sweep_mm + 1},
+             {"landmark_world_sd_min_prominence", -0.1}, {"landmark_world_sd_min_prominence", 1.5}}) {
+        nlohmann::json b = jw["parameters"];
+        b[field] = bad;
+        EXPECT_THROW(registration_params_from_json(b, "params"), InputError) << field << " " << bad;
     }
 }

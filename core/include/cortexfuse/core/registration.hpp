@@ -118,6 +118,18 @@ struct RegistrationParams {
     bool landmark_world_sd_by_image = false;
     /// The cost margin that the widened fit has to win by (NMI units; docs/registration.md).
     double landmark_world_sd_margin = 0.02;
+    /// Two witnesses from the photo besides the margin, each a sweep of the similarity in tx and ty
+    /// (prominence_sweep_mm either side, prominence_sweep_steps samples, at the first final stage's
+    /// size and blur, with a headlight, as the prominence gate), taken only once the margin is met:
+    /// the plain prior must be holding its best candidate off the photo's peak (the sweep across
+    /// it peaks at least landmark_world_sd_peak_apart_mm away, the two axes averaged), and the
+    /// widened fit must sit on a peak that stands clear (peak_prominence() of its sweep, the two
+    /// axes averaged, at least landmark_world_sd_min_prominence). 0 turns a witness off. A lead
+    /// alone is noise on a photo that pins the pose weakly: the thresholds lie in the gaps between
+    /// the runs widening rescued and those it harmed (thirty-sixth session, docs/registration.md).
+    /// The sweeps are reported as the stages "witness-peak-apart" and "witness-prominence".
+    double landmark_world_sd_peak_apart_mm = 2.5;
+    double landmark_world_sd_min_prominence = 0.45;
     double sample_distance_mm = 1.0;
     /// The optimiser's translation frame: false, the camera's axes (tz along the optical axis);
     /// true, tz along the line of sight through the pivot and tx, ty across it, so a depth step
@@ -286,6 +298,11 @@ struct RegistrationResult {
     /// the best other candidate (both charged by it; compared with landmark_world_sd_margin). NaN
     /// when there was no such fit.
     double landmark_widened_fit_lead = std::numeric_limits<double>::quiet_NaN();
+    /// The witnesses (RegistrationParams::landmark_world_sd_peak_apart_mm, _min_prominence): how
+    /// far from the best plain candidate the photo's peak lies (mm, tx and ty averaged), and the
+    /// prominence of the widened fit's peak. NaN where not swept (the margin not met, or off).
+    double landmark_plain_fit_peak_apart_mm = std::numeric_limits<double>::quiet_NaN();
+    double landmark_widened_fit_prominence = std::numeric_limits<double>::quiet_NaN();
 };
 
 nlohmann::json result_to_json(const RegistrationResult& r);
