@@ -72,6 +72,9 @@ struct Row {
     std::vector<double> mre, tre, ipe_px, ipe_mm, seconds, evals;
 };
 
+// A result's optional figure (NaN: not measured) as a number or null.
+json number_or_null(double v) { return std::isnan(v) ? json(nullptr) : json(v); }
+
 json row_json(const Row& r, double success_mm) {
     const Stat m = stat(r.mre), t = stat(r.tre), ip = stat(r.ipe_px), im = stat(r.ipe_mm), s = stat(r.seconds);
     const double succ = r.mre.empty() ? 0.0 : double(std::count_if(r.mre.begin(), r.mre.end(), [&](double x) { return x < success_mm; })) / double(r.mre.size());
@@ -272,12 +275,12 @@ void add_evaluate(CLI::App& app) {
                                                         {"offset_camera_mm", {e_lm.offset_camera_mm.x(), e_lm.offset_camera_mm.y(), e_lm.offset_camera_mm.z()}}}},
                                     {"surface_offset_mm", {{"median", offset.median_mm}, {"mean", offset.mean_mm}, {"mad", offset.mad_mm}, {"pixels", offset.pixels}}},
                                     {"seconds", r.seconds}, {"evaluations", r.evaluations}, {"similarity", r.similarity}, {"stages", stages},
-                                    {"peak_prominence", std::isnan(r.peak_prominence) ? json(nullptr) : json(r.peak_prominence)},
+                                    {"peak_prominence", number_or_null(r.peak_prominence)},
                                     {"landmarks_weighed_up", r.landmarks_weighed_up},
                                     {"landmark_prior_widened", r.landmark_prior_widened},
-                                    {"landmark_widened_fit_lead", std::isnan(r.landmark_widened_fit_lead) ? json(nullptr) : json(r.landmark_widened_fit_lead)},
-                                    {"landmark_plain_fit_peak_apart_mm", std::isnan(r.landmark_plain_fit_peak_apart_mm) ? json(nullptr) : json(r.landmark_plain_fit_peak_apart_mm)},
-                                    {"landmark_widened_fit_prominence", std::isnan(r.landmark_widened_fit_prominence) ? json(nullptr) : json(r.landmark_widened_fit_prominence)},
+                                    {"landmark_widened_fit_lead", number_or_null(r.landmark_widened_fit_lead)},
+                                    {"landmark_plain_fit_peak_apart_mm", number_or_null(r.landmark_plain_fit_peak_apart_mm)},
+                                    {"landmark_widened_fit_prominence", number_or_null(r.landmark_widened_fit_prominence)},
                                     {"truth_score", {{"similarity", s_truth.similarity}, {"cost", s_truth.cost}}},
                                     {"final_score", {{"similarity", s_final.similarity}, {"cost", s_final.cost}}}});
                     ++done;

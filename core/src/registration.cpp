@@ -1433,21 +1433,19 @@ RegistrationResult Registration::run(const PhotoInput& in, const Progress* progr
     // Otherwise it is dropped, and the rest goes on exactly as without the option.
     if (widened_candidate != SIZE_MAX) {
         std::vector<double> widened_cost(candidates.size());
-        double best_other = 1e300;
+        size_t best_plain = SIZE_MAX;  // the best other candidate, charged by the widened prior
         for (size_t c = 0; c < candidates.size(); ++c) {
             const Pose T = apply_params(T0, pivot_cam, candidates[c].x);
             widened_cost[c] = c == widened_candidate ? candidates[c].cost : candidates[c].cost - prior(T) + prior.charge(T, true);
-            if (c != widened_candidate) best_other = std::min(best_other, widened_cost[c]);
+            if (c != widened_candidate && (best_plain == SIZE_MAX || widened_cost[c] < widened_cost[best_plain])) best_plain = c;
         }
+        const double best_other = best_plain == SIZE_MAX ? 1e300 : widened_cost[best_plain];
         res.landmark_widened_fit_lead = best_other - widened_cost[widened_candidate];
         res.landmark_prior_widened = res.landmark_widened_fit_lead >= params_.landmark_world_sd_margin;
         // The photo's own witnesses (RegistrationParams::landmark_world_sd_peak_apart_mm and
         // _min_prominence): a lead alone is noise where the photo pins the pose weakly.
         if (res.landmark_prior_widened && (witness_apart || witness_prominence)) {
             if (cancel) cancel->throw_if_cancelled();
-            size_t best_plain = SIZE_MAX;
-            for (size_t c = 0; c < candidates.size(); ++c)
-                if (c != widened_candidate && (best_plain == SIZE_MAX || widened_cost[c] < widened_cost[best_plain])) best_plain = c;
             if (witness_apart && best_plain != SIZE_MAX) {
                 const Sweep2 s = sweep_tx_ty(candidates[best_plain].x, "witness-peak-apart", start_of[best_plain]);
                 res.landmark_plain_fit_peak_apart_mm = s.peak_apart_mm;
