@@ -180,10 +180,16 @@ std::vector<LandmarkFit> pnp_candidates(const std::vector<Landmark>& lms, const 
             consider_turn(Eigen::Quaterniond::FromTwoVectors(n, n_flipped).toRotationMatrix(), "pnp-flip");
     }
     std::sort(out.begin(), out.end(), [](const LandmarkFit& a, const LandmarkFit& b) { return a.rms_px < b.rms_px; });
+    return landmark_fits_within(std::move(out), lms, K, world_sd_mm);
+}
+
+std::vector<LandmarkFit> landmark_fits_within(std::vector<LandmarkFit> fits, const std::vector<Landmark>& lms,
+                                              const Intrinsics& K, double world_sd_mm) {
+    if (fits.empty()) return fits;
     // Keep those that explain the landmarks nearly as well as the best (noise of a few px).
-    const double limit = out.front().rms_px * 2.0 + 2.0 + world_sd_mm * landmark_px_per_mm(lms, K, out.front().T_camera_from_world);
-    out.erase(std::remove_if(out.begin(), out.end(), [&](const LandmarkFit& f) { return f.rms_px > limit; }), out.end());
-    return out;
+    const double limit = fits.front().rms_px * 2.0 + 2.0 + world_sd_mm * landmark_px_per_mm(lms, K, fits.front().T_camera_from_world);
+    fits.erase(std::remove_if(fits.begin(), fits.end(), [&](const LandmarkFit& f) { return f.rms_px > limit; }), fits.end());
+    return fits;
 }
 
 LandmarkFit fit_pose_orthographic(const std::vector<Landmark>& lms, const Intrinsics& K) {

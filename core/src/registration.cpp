@@ -1112,6 +1112,15 @@ RegistrationResult Registration::run(const PhotoInput& in, const Progress* progr
     const bool widen_by_image = params_.landmark_world_sd_by_image && params_.landmark_world_sd_mm > 0;
     const double fits_sd_mm = widen_by_image ? 0.0 : params_.landmark_world_sd_mm;
     std::vector<LandmarkFit> fits_wide;
+    // One PnP pass: the widened limit's fits, filtered to the plain limit, are the plain call's own.
+    auto fit_landmarks = [&] {
+        if (!widen_by_image) {
+            fits = pnp_candidates(in.landmarks, K, fits_sd_mm);
+            return;
+        }
+        fits_wide = pnp_candidates(in.landmarks, K, params_.landmark_world_sd_mm);
+        fits = landmark_fits_within(fits_wide, in.landmarks, K, fits_sd_mm);
+    };
     if (in.initial_pose) {
         T0 = *in.initial_pose;
         res.initial_method = "initial_pose";
@@ -1120,13 +1129,11 @@ RegistrationResult Registration::run(const PhotoInput& in, const Progress* progr
         // (on the featureless MNI152 photos such starts ended at wrong turns the NMI preferred).
         if (params_.initial_pose_landmark_moves && in.landmarks.size() >= 4 &&
             landmark_spread_warning(landmark_spread(in.landmarks)).empty()) {
-            fits = pnp_candidates(in.landmarks, K, fits_sd_mm);
-            if (widen_by_image) fits_wide = pnp_candidates(in.landmarks, K, params_.landmark_world_sd_mm);
+            fit_landmarks();
         }
     } else {
         if (in.landmarks.size() < 4) throw InputError("landmarks", "needs at least 4 pairs or an initial pose");
-        fits = pnp_candidates(in.landmarks, K, fits_sd_mm);
-        if (widen_by_image) fits_wide = pnp_candidates(in.landmarks, K, params_.landmark_world_sd_mm);
+        fit_landmarks();
         T0 = fits.front().T_camera_from_world;
         res.initial_method = fits.front().method;
     }

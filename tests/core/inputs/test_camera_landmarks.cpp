@@ -334,6 +334,15 @@ TEST(LandmarkFit, TheModelPointsErrorInPixelsWidensTheCandidatesLimit) {
         EXPECT_GT(px_per_mm, 3.5) << seed;  // f / z at the best fit's depth (the truth's: 5.1)
         for (const auto& g : with) EXPECT_LE(g.rms_px, 2 * best + 2 + 1.5 * px_per_mm + 1e-9) << seed;
         for (const auto& f : without) EXPECT_LE(f.rms_px, 2 * best + 2 + 1e-9) << seed;
+        // The registration fits once: the widened list filtered to the plain limit is the plain
+        // call's list, pose for pose and in order.
+        const auto filtered = landmark_fits_within(with, lms, K, 0.0);
+        ASSERT_EQ(filtered.size(), without.size()) << seed;
+        for (size_t i = 0; i < filtered.size(); ++i) {
+            EXPECT_TRUE(filtered[i].T_camera_from_world == without[i].T_camera_from_world) << seed << " fit " << i;
+            EXPECT_EQ(filtered[i].rms_px, without[i].rms_px) << seed << " fit " << i;
+        }
     }
     EXPECT_GE(grew, 3);  // 11 of the 60 draws keep more fits
+    EXPECT_TRUE(landmark_fits_within({}, steep_view_landmarks(K, T, 1, 2.0, 1.5), K, 1.5).empty());
 }

@@ -27,6 +27,11 @@ LandmarkFit fit_pose_pnp(const std::vector<Landmark>& lms, const Intrinsics& K);
 /// magnification (f / z px per mm at the landmarks' centroid).
 std::vector<LandmarkFit> pnp_candidates(const std::vector<Landmark>& lms, const Intrinsics& K,
                                         double world_sd_mm = 0.0, double min_separation_deg = 5.0);
+/// pnp_candidates' limit applied to a best-first list of fits (the best, fits.front(), is kept):
+/// the fits of a wider world_sd_mm filtered to a narrower one are that narrower call's own, so
+/// one PnP pass serves both.
+std::vector<LandmarkFit> landmark_fits_within(std::vector<LandmarkFit> fits, const std::vector<Landmark>& lms,
+                                              const Intrinsics& K, double world_sd_mm);
 /// Pixels per mm at the landmarks' centroid seen by T (f / z); 0 if it lies behind the camera.
 double landmark_px_per_mm(const std::vector<Landmark>& lms, const Intrinsics& K, const Pose& T);
 /// The seed's scaled-orthographic variant (affine camera, then orthonormalised), for comparison.
