@@ -327,6 +327,7 @@ json to_json(const RegistrationParams& p) {
     j["vessel_mask_mad"] = p.vessel_mask_mad;
     j["vessel_mask_window"] = p.vessel_mask_window;
     j["highpass_fwhm_mm"] = p.highpass_fwhm_mm;
+    j["masked_blur"] = p.masked_blur;
     j["landmark_prior_weight"] = p.landmark_prior_weight;
     j["landmark_prior_tolerance_px"] = p.landmark_prior_tolerance_px;
     j["landmark_prior_expected"] = p.landmark_prior_expected;
@@ -392,6 +393,7 @@ RegistrationParams registration_params_from_json(const json& j, const std::strin
         p.vessel_mask_mad = j.value("vessel_mask_mad", p.vessel_mask_mad);
         p.vessel_mask_window = j.value("vessel_mask_window", p.vessel_mask_window);
         p.highpass_fwhm_mm = j.value("highpass_fwhm_mm", p.highpass_fwhm_mm);
+        p.masked_blur = j.value("masked_blur", p.masked_blur);
         p.landmark_prior_weight = j.value("landmark_prior_weight", p.landmark_prior_weight);
         p.landmark_prior_tolerance_px = j.value("landmark_prior_tolerance_px", p.landmark_prior_tolerance_px);
         p.landmark_prior_expected = j.value("landmark_prior_expected", p.landmark_prior_expected);
@@ -662,6 +664,9 @@ struct Level {
     double blurred_fwhm_mm = -1;
     std::vector<uint8_t> ray_mask;  // the rays cast for `ray_mask_fwhm_mm` (outer_ray_stride > 1)
     double ray_mask_fwhm_mm = -1;
+    // masked_blur: the usable mask as 0/1 floats, and its blur per FWHM (the normaliser).
+    cv::Mat valid_f;
+    std::map<double, cv::Mat> valid_blur;
 };
 
 /// Renders a pose and scores it against the photo at a stage's size and blur. Working levels
@@ -808,6 +813,8 @@ public:
         // (mm -> px at this depth) would be negative.
         if (!(depth_mm > 1.0))
             throw InputError("initial pose", "the brain is behind the camera (pivot depth " + std::to_string(depth_mm) + " mm)");
+        if (depth_mm != depth_mm_)
+            for (auto& [width, L] : levels_) L.valid_blur.clear();  // px per mm changed
         depth_mm_ = depth_mm;
         pivot_cam_ = pivot_cam;
         if (width_depth_mm_ <= 0) width_depth_mm_ = depth_mm;
@@ -946,13 +953,30 @@ private:
         return mixed_;
     }
 
+    /// blur_fwhm_mm(), or with masked_blur blur_fwhm_mm_masked() over the photo's usable pixels,
+    /// the blurred mask cached per level and FWHM.
+    void blur(const cv::Mat& src, cv::Mat& dst, double fwhm_mm, Level& L) {
+        if (!p_.masked_blur) {
+            blur_fwhm_mm(src, dst, fwhm_mm, L.K.fx, depth_mm_);
+            return;
+        }
+        if (L.valid_f.empty()) L.photo.valid.convertTo(L.valid_f, CV_32F, 1.0 / 255.0);
+        auto it = L.valid_blur.find(fwhm_mm);
+        if (it == L.valid_blur.end()) {
+            cv::Mat w;
+            blur_fwhm_mm(L.valid_f, w, fwhm_mm, L.K.fx, depth_mm_);
+            it = L.valid_blur.emplace(fwhm_mm, std::move(w)).first;
+        }
+        blur_fwhm_mm_masked(src, L.valid_f, it->second, dst, fwhm_mm, L.K.fx, depth_mm_, masked_);
+    }
+
     /// Blur by the stage's FWHM; with a high-pass, also remove shading trends wider than
     /// highpass_fwhm_mm (lighting gradients and vignetting that out-of-plane tilts would
     /// otherwise be fitted to) and rescale the result to [0, 1] inside the mask.
-    void filter(const cv::Mat& src, cv::Mat& dst, double fwhm_mm, const Level& L) {
-        blur_fwhm_mm(src, dst, fwhm_mm, L.K.fx, depth_mm_);
+    void filter(const cv::Mat& src, cv::Mat& dst, double fwhm_mm, Level& L) {
+        blur(src, dst, fwhm_mm, L);
         if (p_.highpass_fwhm_mm <= 0) return;
-        blur_fwhm_mm(dst, lowpass_, p_.highpass_fwhm_mm, L.K.fx, depth_mm_);
+        blur(dst, lowpass_, p_.highpass_fwhm_mm, L);
         dst -= lowpass_;
         double mn = 0, mx = 0;
         if (p_.robust_range) {
@@ -979,7 +1003,7 @@ private:
     std::map<int, Level> levels_;
     cv::Mat source_;  // the photo the levels are resized from (in_.photo_bgr, or shrunk once)
     RenderImage img_;
-    cv::Mat rendered_blur_, lowpass_, mixed_, depth_, hull_, darkened_;
+    cv::Mat rendered_blur_, lowpass_, mixed_, depth_, hull_, darkened_, masked_;
     std::vector<float> vals_;
     double depth_mm_ = 300;
     Eigen::Vector3d pivot_cam_{0, 0, 300};  // the pivot in the camera frame at set_pivot()

@@ -169,6 +169,18 @@ void blur_fwhm_mm(const cv::Mat& src, cv::Mat& dst, double fwhm_mm, double focal
     cv::GaussianBlur(src, dst, cv::Size(0, 0), sigma, sigma, cv::BORDER_REPLICATE);
 }
 
+void blur_fwhm_mm_masked(const cv::Mat& src, const cv::Mat& valid_f, const cv::Mat& valid_blur, cv::Mat& dst,
+                         double fwhm_mm, double focal_px, double depth_mm, cv::Mat& scratch) {
+    CV_Assert(src.type() == CV_32F && valid_f.type() == CV_32F && valid_blur.type() == CV_32F);
+    CV_Assert(src.size() == valid_f.size() && src.size() == valid_blur.size());
+    cv::multiply(src, valid_f, scratch);
+    blur_fwhm_mm(scratch, dst, fwhm_mm, focal_px, depth_mm);
+    const float* w = valid_blur.ptr<float>();
+    float* d = dst.ptr<float>();
+    const size_t n = dst.total();
+    for (size_t i = 0; i < n; ++i) d[i] = w[i] > 1e-3f ? d[i] / w[i] : 0.f;
+}
+
 void blur_fwhm_mm_coarse(const cv::Mat& src, cv::Mat& dst, double fwhm_mm, double focal_px, double depth_mm) {
     const double sigma = fwhm_mm_to_sigma_px(fwhm_mm, focal_px, depth_mm);
     if (sigma < 4.0) {

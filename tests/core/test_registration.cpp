@@ -14,6 +14,7 @@
 #include "cortexfuse/core/landmarks.hpp"
 #include "cortexfuse/core/phantom.hpp"
 #include "cortexfuse/core/registration.hpp"
+#include "cortexfuse/core/roi.hpp"
 #include "../remove_dir_guard.hpp"
 
 namespace fs = std::filesystem;
@@ -235,6 +236,12 @@ TEST(Registration, ParametersRoundTripAndRejectNonsense) {
     bad = to_json(RegistrationParams::defaults());
     bad["vessel_mask_window"] = 0;  // the plain median and MAD: allowed, and kept
     EXPECT_EQ(registration_params_from_json(bad, "params").vessel_mask_window, 0);
+    bad = to_json(RegistrationParams::defaults());
+    EXPECT_EQ(bad["masked_blur"], false);  // opt-in
+    bad["masked_blur"] = true;
+    EXPECT_TRUE(registration_params_from_json(bad, "params").masked_blur);
+    bad["masked_blur"] = "yes";
+    EXPECT_THROW(registration_params_from_json(bad, "params"), InputError);
 }
 
 TEST(Registration, ScreensEveryStartThenSearchesOnlyTheKeptOnesAndRefinesTheWinner) {
@@ -639,6 +646,41 @@ TEST(Registration, AnOuterRayStrideKeepsTheSimilarityLandscape) {
     bad.outer_ray_stride = 0;
     EXPECT_THROW(bad.validate("params"), InputError);
     EXPECT_EQ(registration_params_from_json(to_json(strided), "params").outer_ray_stride, 2);
+}
+
+// RegistrationParams::masked_blur: only usable pixels reach the blurred photo. Whatever lies
+// outside the ROI (skin, drapes, bone; with the plain blur their light spreads into the ROI's
+// edge, most at FWHM 8 mm) then leaves the similarity exactly as it was.
+TEST(Registration, TheMaskedBlurLeavesTheSimilarityBlindToWhatLiesOutsideTheRoi) {
+    const Fixture& f = fixture();
+    ASSERT_TRUE(f.c.spec.truth.has_value());
+    ASSERT_TRUE(f.c.photo.roi.has_value());
+    const Pose T_true = f.c.spec.truth->T_camera_from_world;
+    PhotoInput painted = f.c.photo;
+    painted.photo_bgr = f.c.photo.photo_bgr.clone();
+    // Paint everything a few pixels beyond the ROI black (a working level's area resize averages
+    // up to full / working pixels across its edge, so the ROI's own pixels stay as they were).
+    const cv::Mat roi = roi_mask(*painted.roi, painted.photo_bgr.cols, painted.photo_bgr.rows);
+    cv::Mat near_roi;
+    const int reach = 2 * painted.photo_bgr.cols / 96 + 3;
+    cv::dilate(roi, near_roi, cv::getStructuringElement(cv::MORPH_ELLIPSE, cv::Size(2 * reach + 1, 2 * reach + 1)));
+    painted.photo_bgr.setTo(cv::Scalar(0, 0, 0), near_roi == 0);
+    ASSERT_GT(cv::countNonZero(near_roi == 0), painted.photo_bgr.total() / 10);
+    RegistrationParams plain = RegistrationParams::defaults();
+    RegistrationParams masked = plain;
+    masked.masked_blur = true;
+    Registration reg_plain(f.c.volume, f.c.mask, plain), reg_masked(f.c.volume, f.c.mask, masked);
+    int plain_changed = 0;
+    for (const StageParams* stage : {&plain.search_stages.front(), &plain.final_stages.front()}) {
+        const double m0 = reg_masked.score(f.c.photo, T_true, T_true, *stage).similarity;
+        const double m1 = reg_masked.score(painted, T_true, T_true, *stage).similarity;
+        EXPECT_EQ(m0, m1) << stage->name;
+        const double p0 = reg_plain.score(f.c.photo, T_true, T_true, *stage).similarity;
+        const double p1 = reg_plain.score(painted, T_true, T_true, *stage).similarity;
+        plain_changed += std::abs(p0 - p1) > 1e-4;
+        EXPECT_NE(m0, p0) << stage->name << ": the masked blur changed nothing";
+    }
+    EXPECT_GE(plain_changed, 1) << "the paint did not reach the plain blur: the test shows nothing";
 }
 
 TEST(Registration, MaxFwhmPxRendersAStageNarrowerWhereItsBlurWouldSpanMorePixels) {

@@ -110,6 +110,40 @@ TEST(Blur, FwhmInMillimetresBecomesSigmaInPixels) {
     }
 }
 
+// RegistrationParams::masked_blur: gauze, blood and glare, which the photo's mask drops, must
+// not spread their light into the usable pixels around them.
+TEST(Blur, TheMaskedBlurNeverReadsUnusablePixels) {
+    const cv::Mat a = noise_image(96, 64, 11);
+    cv::Mat valid(a.size(), CV_32F, cv::Scalar(1.f));
+    valid(cv::Rect(30, 20, 25, 18)).setTo(0.f);  // a patch of gauze
+    valid(cv::Rect(0, 0, 6, 64)).setTo(0.f);     // a drape along the edge
+    const double fwhm_mm = 4.0;                  // sigma 6.8 px at 4 px per mm
+    cv::Mat valid_blur, d, scratch;
+    cf::blur_fwhm_mm(valid, valid_blur, fwhm_mm, 800, 200);
+    cf::blur_fwhm_mm_masked(a, valid, valid_blur, d, fwhm_mm, 800, 200, scratch);
+    // Anything painted where the mask is 0 leaves the result at every usable pixel as it was.
+    cv::Mat painted = a.clone();
+    painted.setTo(5.f, valid == 0.f);
+    cv::Mat d2;
+    cf::blur_fwhm_mm_masked(painted, valid, valid_blur, d2, fwhm_mm, 800, 200, scratch);
+    EXPECT_LT(cv::norm(d, d2, cv::NORM_INF, valid != 0.f), 1e-5);
+    // The plain blur is not so: the paint reaches the pixels next to the patch.
+    cv::Mat p1, p2;
+    cf::blur_fwhm_mm(a, p1, fwhm_mm, 800, 200);
+    cf::blur_fwhm_mm(painted, p2, fwhm_mm, 800, 200);
+    EXPECT_GT(cv::norm(p1, p2, cv::NORM_INF, valid != 0.f), 0.5);
+    // A constant over the usable pixels stays that constant there, whatever lies beside it.
+    cv::Mat flat(a.size(), CV_32F, cv::Scalar(0.25f));
+    flat.setTo(1.f, valid == 0.f);
+    cf::blur_fwhm_mm_masked(flat, valid, valid_blur, d, fwhm_mm, 800, 200, scratch);
+    EXPECT_LT(cv::norm(d - 0.25f, cv::NORM_INF, valid != 0.f), 1e-5);
+    // With every pixel usable it is the plain blur, up to rounding.
+    cv::Mat all(a.size(), CV_32F, cv::Scalar(1.f)), all_blur;
+    cf::blur_fwhm_mm(all, all_blur, fwhm_mm, 800, 200);
+    cf::blur_fwhm_mm_masked(a, all, all_blur, d, fwhm_mm, 800, 200, scratch);
+    EXPECT_LT(cv::norm(d, p1, cv::NORM_INF), 1e-5);
+}
+
 TEST(Blur, WideBlursOnACoarserGridStayCloseToTheFullSizeGaussian) {
     // A smooth picture with edges (a rendered brain has both) and the sigmas of the 12 mm
     // high-pass at registration sizes (4-8 px) and of a close DSLR view (~30 px).

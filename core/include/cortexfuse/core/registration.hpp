@@ -92,6 +92,12 @@ struct RegistrationParams {
     /// Remove shading trends wider than this FWHM (mm at the cortex) from photo and rendering
     /// before comparing them. 0 disables.
     double highpass_fwhm_mm = 12.0;
+    /// Blur photo and rendering over the usable pixels only (a normalised convolution with the
+    /// photo's mask, for the stage's blur and the high-pass alike): with a plain blur, gauze,
+    /// blood, vessels and glare, which the mask drops, still spread their light into the usable
+    /// pixels around them, most at FWHM 8 mm. false: the plain blur (opt-in, thirty-seventh
+    /// session, docs/registration.md).
+    bool masked_blur = false;
     /// Soft prior: penalty weight * max(0, rms - rms_landmark - tolerance)^2, rms in pixels at
     /// 375 px width. Holds depth and tilt, which a single photo barely constrains. 0 disables.
     double landmark_prior_weight = 0.01;

@@ -45,6 +45,13 @@ private:
 /// from a camera of focal length `focal_px`: sigma_px = FWHM / 2.3548 * f / depth.
 void blur_fwhm_mm(const cv::Mat& src, cv::Mat& dst, double fwhm_mm, double focal_px, double depth_mm);
 double fwhm_mm_to_sigma_px(double fwhm_mm, double focal_px, double depth_mm);
+/// The same blur over the pixels where `valid_f` (CV_32F, 1 usable, 0 not) is 1 only, a
+/// normalised convolution: blur(src * valid_f) / valid_blur, where `valid_blur` is
+/// blur_fwhm_mm(valid_f) at the same FWHM (passed in, so a caller blurring many images against
+/// one mask blurs the mask once). Unusable pixels' values never reach the result; pixels with no
+/// usable one within reach (valid_blur under 1e-3) are 0. `scratch` is a reused buffer.
+void blur_fwhm_mm_masked(const cv::Mat& src, const cv::Mat& valid_f, const cv::Mat& valid_blur, cv::Mat& dst,
+                         double fwhm_mm, double focal_px, double depth_mm, cv::Mat& scratch);
 /// The same blur, approximated on a coarser grid when it is wide (sigma >= 4 px): within a few
 /// thousandths of the exact one on a [0, 1] image, at a fraction of its cost. For smooth
 /// references (the sulcal hull), not for the images the metric compares.
