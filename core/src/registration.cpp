@@ -477,11 +477,11 @@ json result_to_json(const RegistrationResult& r) {
     j["light_direction_camera"] = {r.light_direction_camera.x(), r.light_direction_camera.y(), r.light_direction_camera.z()};
     if (r.light_position_camera_mm)
         j["light_position_camera_mm"] = {r.light_position_camera_mm->x(), r.light_position_camera_mm->y(), r.light_position_camera_mm->z()};
-    if (std::isnan(r.peak_prominence)) j["peak_prominence"] = nullptr;
-    else j["peak_prominence"] = r.peak_prominence;
+    // The optional figures (NaN: not measured) as a number or null.
+    auto number_or_null = [](double v) { return std::isnan(v) ? json(nullptr) : json(v); };
+    j["peak_prominence"] = number_or_null(r.peak_prominence);
     j["landmarks_weighed_up"] = r.landmarks_weighed_up;
     j["landmark_prior_widened"] = r.landmark_prior_widened;
-    auto number_or_null = [](double v) { return std::isnan(v) ? json(nullptr) : json(v); };
     j["landmark_widened_fit_lead"] = number_or_null(r.landmark_widened_fit_lead);
     j["landmark_plain_fit_peak_apart_mm"] = number_or_null(r.landmark_plain_fit_peak_apart_mm);
     j["landmark_widened_fit_prominence"] = number_or_null(r.landmark_widened_fit_prominence);
