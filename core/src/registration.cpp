@@ -328,6 +328,7 @@ json to_json(const RegistrationParams& p) {
     j["vessel_mask_window"] = p.vessel_mask_window;
     j["highpass_fwhm_mm"] = p.highpass_fwhm_mm;
     j["masked_blur"] = p.masked_blur;
+    j["masked_blur_outside_roi"] = p.masked_blur_outside_roi;
     j["landmark_prior_weight"] = p.landmark_prior_weight;
     j["landmark_prior_tolerance_px"] = p.landmark_prior_tolerance_px;
     j["landmark_prior_expected"] = p.landmark_prior_expected;
@@ -394,6 +395,7 @@ RegistrationParams registration_params_from_json(const json& j, const std::strin
         p.vessel_mask_window = j.value("vessel_mask_window", p.vessel_mask_window);
         p.highpass_fwhm_mm = j.value("highpass_fwhm_mm", p.highpass_fwhm_mm);
         p.masked_blur = j.value("masked_blur", p.masked_blur);
+        p.masked_blur_outside_roi = j.value("masked_blur_outside_roi", p.masked_blur_outside_roi);
         p.landmark_prior_weight = j.value("landmark_prior_weight", p.landmark_prior_weight);
         p.landmark_prior_tolerance_px = j.value("landmark_prior_tolerance_px", p.landmark_prior_tolerance_px);
         p.landmark_prior_expected = j.value("landmark_prior_expected", p.landmark_prior_expected);
@@ -665,6 +667,7 @@ struct Level {
     std::vector<uint8_t> ray_mask;  // the rays cast for `ray_mask_fwhm_mm` (outer_ray_stride > 1)
     double ray_mask_fwhm_mm = -1;
     // masked_blur: the usable mask as 0/1 floats, and its blur per FWHM (the normaliser).
+    cv::Mat roi;  // the ROI at this level (empty without one)
     cv::Mat valid_f;
     std::map<double, cv::Mat> valid_blur;
 };
@@ -727,6 +730,7 @@ public:
         }
         L.photo = photo_channel(small, p_.photo_channel, p_.mask_glare, roi, p_.vessel_mask_mad,
                                 p_.vessel_mask_window);
+        L.roi = roi;
         if (cv::countNonZero(L.photo.valid) < 50)
             throw InputError("photo", "fewer than 50 usable pixels in the ROI at " + std::to_string(w) + " px width (all glare or drapes?)");
         return levels_.emplace(width, std::move(L)).first->second;
@@ -960,7 +964,10 @@ private:
             blur_fwhm_mm(src, dst, fwhm_mm, L.K.fx, depth_mm_);
             return;
         }
-        if (L.valid_f.empty()) L.photo.valid.convertTo(L.valid_f, CV_32F, 1.0 / 255.0);
+        if (L.valid_f.empty()) {
+            L.photo.valid.convertTo(L.valid_f, CV_32F, 1.0 / 255.0);
+            if (!p_.masked_blur_outside_roi && !L.roi.empty()) L.valid_f.setTo(1.f, L.roi == 0);
+        }
         auto it = L.valid_blur.find(fwhm_mm);
         if (it == L.valid_blur.end()) {
             cv::Mat w;

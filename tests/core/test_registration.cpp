@@ -683,6 +683,43 @@ TEST(Registration, TheMaskedBlurLeavesTheSimilarityBlindToWhatLiesOutsideTheRoi)
     EXPECT_GE(plain_changed, 1) << "the paint did not reach the plain blur: the test shows nothing";
 }
 
+// masked_blur_outside_roi false: the masked blur drops only what the mask drops inside the ROI,
+// and blurs in what lies outside it as the plain blur does. So painting outside the ROI reaches
+// the similarity again, and the result is neither the plain blur's nor the whole mask's.
+TEST(Registration, TheMaskedBlurInsideTheRoiOnlyStillSeesWhatLiesOutsideIt) {
+    const Fixture& f = fixture();
+    ASSERT_TRUE(f.c.spec.truth.has_value());
+    ASSERT_TRUE(f.c.photo.roi.has_value());
+    const Pose T_true = f.c.spec.truth->T_camera_from_world;
+    PhotoInput painted = f.c.photo;
+    painted.photo_bgr = f.c.photo.photo_bgr.clone();
+    const cv::Mat roi = roi_mask(*painted.roi, painted.photo_bgr.cols, painted.photo_bgr.rows);
+    cv::Mat near_roi;
+    const int reach = 2 * painted.photo_bgr.cols / 96 + 3;
+    cv::dilate(roi, near_roi, cv::getStructuringElement(cv::MORPH_ELLIPSE, cv::Size(2 * reach + 1, 2 * reach + 1)));
+    painted.photo_bgr.setTo(cv::Scalar(0, 0, 0), near_roi == 0);
+    RegistrationParams plain = RegistrationParams::defaults();
+    RegistrationParams whole = plain;
+    whole.masked_blur = true;
+    RegistrationParams inside = whole;
+    inside.masked_blur_outside_roi = false;
+    EXPECT_TRUE(RegistrationParams::defaults().masked_blur_outside_roi);  // the thirty-seventh session's form
+    EXPECT_FALSE(registration_params_from_json(to_json(inside), "params").masked_blur_outside_roi);
+    Registration reg_plain(f.c.volume, f.c.mask, plain), reg_whole(f.c.volume, f.c.mask, whole),
+        reg_inside(f.c.volume, f.c.mask, inside);
+    int inside_changed = 0;
+    for (const StageParams* stage : {&plain.search_stages.front(), &plain.final_stages.front()}) {
+        const double i0 = reg_inside.score(f.c.photo, T_true, T_true, *stage).similarity;
+        const double i1 = reg_inside.score(painted, T_true, T_true, *stage).similarity;
+        inside_changed += std::abs(i0 - i1) > 1e-4;
+        EXPECT_NE(i0, reg_plain.score(f.c.photo, T_true, T_true, *stage).similarity)
+            << stage->name << ": nothing inside the ROI was left out";
+        EXPECT_NE(i0, reg_whole.score(f.c.photo, T_true, T_true, *stage).similarity)
+            << stage->name << ": the outside of the ROI was left out too";
+    }
+    EXPECT_GE(inside_changed, 1) << "the paint outside the ROI never reached the similarity";
+}
+
 TEST(Registration, MaxFwhmPxRendersAStageNarrowerWhereItsBlurWouldSpanMorePixels) {
     // A stage whose FWHM would span more than max_fwhm_px pixels at its render width renders
     // narrower (a multiple of 8, at least 64 px); 0 keeps every stage at its own width. The

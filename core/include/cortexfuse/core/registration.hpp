@@ -98,6 +98,11 @@ struct RegistrationParams {
     /// pixels around them, most at FWHM 8 mm. false: the plain blur (opt-in, thirty-seventh
     /// session, docs/registration.md).
     bool masked_blur = false;
+    /// With masked_blur, what counts as unusable outside the ROI. true: everything there (the
+    /// thirty-seventh session's form; the ROI's edge then sees no context). false: nothing there,
+    /// so drapes, skin and bone blur in as with the plain blur and only what the mask drops inside
+    /// the ROI (glare, vessels, gauze, blood) is left out.
+    bool masked_blur_outside_roi = true;
     /// Soft prior: penalty weight * max(0, rms - rms_landmark - tolerance)^2, rms in pixels at
     /// 375 px width. Holds depth and tilt, which a single photo barely constrains. 0 disables.
     double landmark_prior_weight = 0.01;
