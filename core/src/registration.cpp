@@ -218,6 +218,8 @@ void RegistrationParams::validate(const std::string& ctx) const {
     auto bad = [&](const std::string& m) { throw InputError(ctx, m); };
     if (bins < 4 || bins > 256) bad("bins must be 4..256");
     if (!photo_channel_mode(photo_channel)) bad("photo_channel must be grey, green, red or blue_minus_half_red");
+    if (masked_blur_over != "usable" && masked_blur_over != "roi" && masked_blur_over != "usable_and_outside")
+        bad("masked_blur_over must be usable, roi or usable_and_outside");
     metric_from_name(metric);
     if (!(highpass_fwhm_mm >= 0 && highpass_fwhm_mm <= 200)) bad("highpass_fwhm_mm must be 0..200 (0: off)");
     if (!(vessel_mask_mad >= 0 && vessel_mask_mad <= 100)) bad("vessel_mask_mad must be 0..100 (0: off)");
@@ -328,7 +330,7 @@ json to_json(const RegistrationParams& p) {
     j["vessel_mask_window"] = p.vessel_mask_window;
     j["highpass_fwhm_mm"] = p.highpass_fwhm_mm;
     j["masked_blur"] = p.masked_blur;
-    j["masked_blur_outside_roi"] = p.masked_blur_outside_roi;
+    j["masked_blur_over"] = p.masked_blur_over;
     j["landmark_prior_weight"] = p.landmark_prior_weight;
     j["landmark_prior_tolerance_px"] = p.landmark_prior_tolerance_px;
     j["landmark_prior_expected"] = p.landmark_prior_expected;
@@ -395,7 +397,7 @@ RegistrationParams registration_params_from_json(const json& j, const std::strin
         p.vessel_mask_window = j.value("vessel_mask_window", p.vessel_mask_window);
         p.highpass_fwhm_mm = j.value("highpass_fwhm_mm", p.highpass_fwhm_mm);
         p.masked_blur = j.value("masked_blur", p.masked_blur);
-        p.masked_blur_outside_roi = j.value("masked_blur_outside_roi", p.masked_blur_outside_roi);
+        p.masked_blur_over = j.value("masked_blur_over", p.masked_blur_over);
         p.landmark_prior_weight = j.value("landmark_prior_weight", p.landmark_prior_weight);
         p.landmark_prior_tolerance_px = j.value("landmark_prior_tolerance_px", p.landmark_prior_tolerance_px);
         p.landmark_prior_expected = j.value("landmark_prior_expected", p.landmark_prior_expected);
@@ -966,7 +968,10 @@ private:
         }
         if (L.valid_f.empty()) {
             L.photo.valid.convertTo(L.valid_f, CV_32F, 1.0 / 255.0);
-            if (!p_.masked_blur_outside_roi && !L.roi.empty()) L.valid_f.setTo(1.f, L.roi == 0);
+            if (p_.masked_blur_over == "roi")
+                L.valid_f.setTo(1.f, L.roi.empty() ? cv::Mat(L.valid_f.size(), CV_8U, cv::Scalar(255)) : L.roi);
+            else if (p_.masked_blur_over == "usable_and_outside" && !L.roi.empty())
+                L.valid_f.setTo(1.f, L.roi == 0);
         }
         auto it = L.valid_blur.find(fwhm_mm);
         if (it == L.valid_blur.end()) {

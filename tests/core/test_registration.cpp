@@ -669,12 +669,20 @@ TEST(Registration, TheMaskedBlurLeavesTheSimilarityBlindToWhatLiesOutsideTheRoi)
     RegistrationParams plain = RegistrationParams::defaults();
     RegistrationParams masked = plain;
     masked.masked_blur = true;
-    Registration reg_plain(f.c.volume, f.c.mask, plain), reg_masked(f.c.volume, f.c.mask, masked);
+    // masked_blur_over "roi": the whole ROI, what the mask drops inside it included, and again
+    // nothing outside it.
+    RegistrationParams over_roi = masked;
+    over_roi.masked_blur_over = "roi";
+    Registration reg_plain(f.c.volume, f.c.mask, plain), reg_masked(f.c.volume, f.c.mask, masked),
+        reg_roi(f.c.volume, f.c.mask, over_roi);
     int plain_changed = 0;
     for (const StageParams* stage : {&plain.search_stages.front(), &plain.final_stages.front()}) {
         const double m0 = reg_masked.score(f.c.photo, T_true, T_true, *stage).similarity;
         const double m1 = reg_masked.score(painted, T_true, T_true, *stage).similarity;
         EXPECT_EQ(m0, m1) << stage->name;
+        const double r0 = reg_roi.score(f.c.photo, T_true, T_true, *stage).similarity;
+        EXPECT_EQ(r0, reg_roi.score(painted, T_true, T_true, *stage).similarity) << stage->name;
+        EXPECT_NE(r0, m0) << stage->name << ": over the ROI, glare and vessels were left out too";
         const double p0 = reg_plain.score(f.c.photo, T_true, T_true, *stage).similarity;
         const double p1 = reg_plain.score(painted, T_true, T_true, *stage).similarity;
         plain_changed += std::abs(p0 - p1) > 1e-4;
@@ -683,7 +691,7 @@ TEST(Registration, TheMaskedBlurLeavesTheSimilarityBlindToWhatLiesOutsideTheRoi)
     EXPECT_GE(plain_changed, 1) << "the paint did not reach the plain blur: the test shows nothing";
 }
 
-// masked_blur_outside_roi false: the masked blur drops only what the mask drops inside the ROI,
+// masked_blur_over "usable_and_outside": the masked blur drops only what the mask drops inside the ROI,
 // and blurs in what lies outside it as the plain blur does. So painting outside the ROI reaches
 // the similarity again, and the result is neither the plain blur's nor the whole mask's.
 TEST(Registration, TheMaskedBlurInsideTheRoiOnlyStillSeesWhatLiesOutsideIt) {
@@ -702,9 +710,12 @@ TEST(Registration, TheMaskedBlurInsideTheRoiOnlyStillSeesWhatLiesOutsideIt) {
     RegistrationParams whole = plain;
     whole.masked_blur = true;
     RegistrationParams inside = whole;
-    inside.masked_blur_outside_roi = false;
-    EXPECT_TRUE(RegistrationParams::defaults().masked_blur_outside_roi);  // the thirty-seventh session's form
-    EXPECT_FALSE(registration_params_from_json(to_json(inside), "params").masked_blur_outside_roi);
+    inside.masked_blur_over = "usable_and_outside";
+    EXPECT_EQ(RegistrationParams::defaults().masked_blur_over, "usable");  // the thirty-seventh session's form
+    EXPECT_EQ(registration_params_from_json(to_json(inside), "params").masked_blur_over, "usable_and_outside");
+    nlohmann::json bad = to_json(inside);
+    bad["masked_blur_over"] = "sideways";
+    EXPECT_THROW(registration_params_from_json(bad, "params"), InputError);
     Registration reg_plain(f.c.volume, f.c.mask, plain), reg_whole(f.c.volume, f.c.mask, whole),
         reg_inside(f.c.volume, f.c.mask, inside);
     int inside_changed = 0;

@@ -98,11 +98,15 @@ struct RegistrationParams {
     /// pixels around them, most at FWHM 8 mm. false: the plain blur (opt-in, thirty-seventh
     /// session, docs/registration.md).
     bool masked_blur = false;
-    /// With masked_blur, what counts as unusable outside the ROI. true: everything there (the
-    /// thirty-seventh session's form; the ROI's edge then sees no context). false: nothing there,
-    /// so drapes, skin and bone blur in as with the plain blur and only what the mask drops inside
-    /// the ROI (glare, vessels, gauze, blood) is left out.
-    bool masked_blur_outside_roi = true;
+    /// With masked_blur, the pixels the blur reads:
+    /// - "usable": the photo's usable pixels, the ROI less glare, vessels, gauze and blood (the
+    ///   thirty-seventh session's form);
+    /// - "roi": the whole ROI; what lies outside it is left out, what the mask drops inside it is
+    ///   blurred in as with the plain blur;
+    /// - "usable_and_outside": what lies outside the ROI is blurred in as with the plain blur,
+    ///   and only what the mask drops inside it is left out.
+    /// Without an ROI, "roi" is the plain blur and "usable_and_outside" is "usable".
+    std::string masked_blur_over = "usable";
     /// Soft prior: penalty weight * max(0, rms - rms_landmark - tolerance)^2, rms in pixels at
     /// 375 px width. Holds depth and tilt, which a single photo barely constrains. 0 disables.
     double landmark_prior_weight = 0.01;
