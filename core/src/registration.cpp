@@ -220,6 +220,8 @@ void RegistrationParams::validate(const std::string& ctx) const {
     if (!photo_channel_mode(photo_channel)) bad("photo_channel must be grey, green, red or blue_minus_half_red");
     if (masked_blur_over != "usable" && masked_blur_over != "roi" && masked_blur_over != "usable_and_outside")
         bad("masked_blur_over must be usable, roi or usable_and_outside");
+    if (!(masked_blur_min_fwhm_mm >= 0 && masked_blur_min_fwhm_mm <= 100))
+        bad("masked_blur_min_fwhm_mm must be 0..100 (0: every stage)");
     metric_from_name(metric);
     if (!(highpass_fwhm_mm >= 0 && highpass_fwhm_mm <= 200)) bad("highpass_fwhm_mm must be 0..200 (0: off)");
     if (!(vessel_mask_mad >= 0 && vessel_mask_mad <= 100)) bad("vessel_mask_mad must be 0..100 (0: off)");
@@ -331,6 +333,7 @@ json to_json(const RegistrationParams& p) {
     j["highpass_fwhm_mm"] = p.highpass_fwhm_mm;
     j["masked_blur"] = p.masked_blur;
     j["masked_blur_over"] = p.masked_blur_over;
+    j["masked_blur_min_fwhm_mm"] = p.masked_blur_min_fwhm_mm;
     j["landmark_prior_weight"] = p.landmark_prior_weight;
     j["landmark_prior_tolerance_px"] = p.landmark_prior_tolerance_px;
     j["landmark_prior_expected"] = p.landmark_prior_expected;
@@ -398,6 +401,7 @@ RegistrationParams registration_params_from_json(const json& j, const std::strin
         p.highpass_fwhm_mm = j.value("highpass_fwhm_mm", p.highpass_fwhm_mm);
         p.masked_blur = j.value("masked_blur", p.masked_blur);
         p.masked_blur_over = j.value("masked_blur_over", p.masked_blur_over);
+        p.masked_blur_min_fwhm_mm = j.value("masked_blur_min_fwhm_mm", p.masked_blur_min_fwhm_mm);
         p.landmark_prior_weight = j.value("landmark_prior_weight", p.landmark_prior_weight);
         p.landmark_prior_tolerance_px = j.value("landmark_prior_tolerance_px", p.landmark_prior_tolerance_px);
         p.landmark_prior_expected = j.value("landmark_prior_expected", p.landmark_prior_expected);
@@ -961,8 +965,8 @@ private:
 
     /// blur_fwhm_mm(), or with masked_blur blur_fwhm_mm_masked() over the photo's usable pixels,
     /// the blurred mask cached per level and FWHM.
-    void blur(const cv::Mat& src, cv::Mat& dst, double fwhm_mm, Level& L) {
-        if (!p_.masked_blur) {
+    void blur(const cv::Mat& src, cv::Mat& dst, double fwhm_mm, Level& L, bool masked) {
+        if (!masked) {
             blur_fwhm_mm(src, dst, fwhm_mm, L.K.fx, depth_mm_);
             return;
         }
@@ -986,9 +990,12 @@ private:
     /// highpass_fwhm_mm (lighting gradients and vignetting that out-of-plane tilts would
     /// otherwise be fitted to) and rescale the result to [0, 1] inside the mask.
     void filter(const cv::Mat& src, cv::Mat& dst, double fwhm_mm, Level& L) {
-        blur(src, dst, fwhm_mm, L);
+        // One stage, one kind of blur, its high-pass included; the photo's cache (per level and
+        // FWHM) stays right because the kind follows the FWHM.
+        const bool masked = p_.masked_blur && fwhm_mm >= p_.masked_blur_min_fwhm_mm;
+        blur(src, dst, fwhm_mm, L, masked);
         if (p_.highpass_fwhm_mm <= 0) return;
-        blur(dst, lowpass_, p_.highpass_fwhm_mm, L);
+        blur(dst, lowpass_, p_.highpass_fwhm_mm, L, masked);
         dst -= lowpass_;
         double mn = 0, mx = 0;
         if (p_.robust_range) {

@@ -691,6 +691,38 @@ TEST(Registration, TheMaskedBlurLeavesTheSimilarityBlindToWhatLiesOutsideTheRoi)
     EXPECT_GE(plain_changed, 1) << "the paint did not reach the plain blur: the test shows nothing";
 }
 
+// masked_blur_min_fwhm_mm: the stages blurred at least that wide use the masked blur, the
+// narrower ones the plain blur, so each stage scores exactly as under one or the other.
+TEST(Registration, TheMaskedBlurCanBeKeptToTheWideStages) {
+    const Fixture& f = fixture();
+    ASSERT_TRUE(f.c.spec.truth.has_value());
+    const Pose T_true = f.c.spec.truth->T_camera_from_world;
+    RegistrationParams plain = RegistrationParams::defaults();
+    RegistrationParams masked = plain;
+    masked.masked_blur = true;
+    RegistrationParams wide_only = masked;
+    wide_only.masked_blur_min_fwhm_mm = 3;
+    EXPECT_EQ(RegistrationParams::defaults().masked_blur_min_fwhm_mm, 0);
+    EXPECT_EQ(registration_params_from_json(to_json(wide_only), "params").masked_blur_min_fwhm_mm, 3);
+    nlohmann::json bad = to_json(wide_only);
+    bad["masked_blur_min_fwhm_mm"] = -1;
+    EXPECT_THROW(registration_params_from_json(bad, "params"), InputError);
+    Registration reg_plain(f.c.volume, f.c.mask, plain), reg_masked(f.c.volume, f.c.mask, masked),
+        reg_wide(f.c.volume, f.c.mask, wide_only);
+    const StageParams& screen = plain.search_stages.front();  // FWHM 8 mm
+    const StageParams& final_stage = plain.final_stages.front();  // FWHM 2 mm
+    ASSERT_GE(screen.fwhm_mm, 3);
+    ASSERT_LT(final_stage.fwhm_mm, 3);
+    // Scored in turn on one Registration, so the photo's per-level cache meets both kinds.
+    for (int pass = 0; pass < 2; ++pass) {
+        const double w_screen = reg_wide.score(f.c.photo, T_true, T_true, screen).similarity;
+        const double w_final = reg_wide.score(f.c.photo, T_true, T_true, final_stage).similarity;
+        EXPECT_EQ(w_screen, reg_masked.score(f.c.photo, T_true, T_true, screen).similarity);
+        EXPECT_EQ(w_final, reg_plain.score(f.c.photo, T_true, T_true, final_stage).similarity);
+        EXPECT_NE(w_final, reg_masked.score(f.c.photo, T_true, T_true, final_stage).similarity);
+    }
+}
+
 // masked_blur_over "usable_and_outside": the masked blur drops only what the mask drops inside the ROI,
 // and blurs in what lies outside it as the plain blur does. So painting outside the ROI reaches
 // the similarity again, and the result is neither the plain blur's nor the whole mask's.
