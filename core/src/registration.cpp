@@ -220,8 +220,8 @@ void RegistrationParams::validate(const std::string& ctx) const {
     if (!photo_channel_mode(photo_channel)) bad("photo_channel must be grey, green, red or blue_minus_half_red");
     if (masked_blur_over != "usable" && masked_blur_over != "roi" && masked_blur_over != "usable_and_outside")
         bad("masked_blur_over must be usable, roi or usable_and_outside");
-    if (!(masked_blur_min_fwhm_mm >= 0 && masked_blur_min_fwhm_mm <= 100))
-        bad("masked_blur_min_fwhm_mm must be 0..100 (0: every stage)");
+    if (!(masked_blur_min_fwhm_mm >= 0 && masked_blur_min_fwhm_mm <= masked_blur_max_fwhm_mm && masked_blur_max_fwhm_mm <= 100))
+        bad("masked_blur_min_fwhm_mm and masked_blur_max_fwhm_mm must satisfy 0 <= min <= max <= 100");
     metric_from_name(metric);
     if (!(highpass_fwhm_mm >= 0 && highpass_fwhm_mm <= 200)) bad("highpass_fwhm_mm must be 0..200 (0: off)");
     if (!(vessel_mask_mad >= 0 && vessel_mask_mad <= 100)) bad("vessel_mask_mad must be 0..100 (0: off)");
@@ -334,6 +334,7 @@ json to_json(const RegistrationParams& p) {
     j["masked_blur"] = p.masked_blur;
     j["masked_blur_over"] = p.masked_blur_over;
     j["masked_blur_min_fwhm_mm"] = p.masked_blur_min_fwhm_mm;
+    j["masked_blur_max_fwhm_mm"] = p.masked_blur_max_fwhm_mm;
     j["landmark_prior_weight"] = p.landmark_prior_weight;
     j["landmark_prior_tolerance_px"] = p.landmark_prior_tolerance_px;
     j["landmark_prior_expected"] = p.landmark_prior_expected;
@@ -402,6 +403,7 @@ RegistrationParams registration_params_from_json(const json& j, const std::strin
         p.masked_blur = j.value("masked_blur", p.masked_blur);
         p.masked_blur_over = j.value("masked_blur_over", p.masked_blur_over);
         p.masked_blur_min_fwhm_mm = j.value("masked_blur_min_fwhm_mm", p.masked_blur_min_fwhm_mm);
+        p.masked_blur_max_fwhm_mm = j.value("masked_blur_max_fwhm_mm", p.masked_blur_max_fwhm_mm);
         p.landmark_prior_weight = j.value("landmark_prior_weight", p.landmark_prior_weight);
         p.landmark_prior_tolerance_px = j.value("landmark_prior_tolerance_px", p.landmark_prior_tolerance_px);
         p.landmark_prior_expected = j.value("landmark_prior_expected", p.landmark_prior_expected);
@@ -992,7 +994,7 @@ private:
     void filter(const cv::Mat& src, cv::Mat& dst, double fwhm_mm, Level& L) {
         // One stage, one kind of blur, its high-pass included; the photo's cache (per level and
         // FWHM) stays right because the kind follows the FWHM.
-        const bool masked = p_.masked_blur && fwhm_mm >= p_.masked_blur_min_fwhm_mm;
+        const bool masked = p_.masked_blur && fwhm_mm >= p_.masked_blur_min_fwhm_mm && fwhm_mm <= p_.masked_blur_max_fwhm_mm;
         blur(src, dst, fwhm_mm, L, masked);
         if (p_.highpass_fwhm_mm <= 0) return;
         blur(dst, lowpass_, p_.highpass_fwhm_mm, L, masked);

@@ -691,8 +691,9 @@ TEST(Registration, TheMaskedBlurLeavesTheSimilarityBlindToWhatLiesOutsideTheRoi)
     EXPECT_GE(plain_changed, 1) << "the paint did not reach the plain blur: the test shows nothing";
 }
 
-// masked_blur_min_fwhm_mm: the stages blurred at least that wide use the masked blur, the
-// narrower ones the plain blur, so each stage scores exactly as under one or the other.
+// masked_blur_min_fwhm_mm and masked_blur_max_fwhm_mm: the stages blurred within that range use
+// the masked blur, the others the plain blur, so each stage scores exactly as under one or the
+// other.
 TEST(Registration, TheMaskedBlurCanBeKeptToTheWideStages) {
     const Fixture& f = fixture();
     ASSERT_TRUE(f.c.spec.truth.has_value());
@@ -702,13 +703,20 @@ TEST(Registration, TheMaskedBlurCanBeKeptToTheWideStages) {
     masked.masked_blur = true;
     RegistrationParams wide_only = masked;
     wide_only.masked_blur_min_fwhm_mm = 3;
+    RegistrationParams narrow_only = masked;
+    narrow_only.masked_blur_max_fwhm_mm = 3;
     EXPECT_EQ(RegistrationParams::defaults().masked_blur_min_fwhm_mm, 0);
+    EXPECT_EQ(RegistrationParams::defaults().masked_blur_max_fwhm_mm, 100);
     EXPECT_EQ(registration_params_from_json(to_json(wide_only), "params").masked_blur_min_fwhm_mm, 3);
+    EXPECT_EQ(registration_params_from_json(to_json(narrow_only), "params").masked_blur_max_fwhm_mm, 3);
     nlohmann::json bad = to_json(wide_only);
     bad["masked_blur_min_fwhm_mm"] = -1;
     EXPECT_THROW(registration_params_from_json(bad, "params"), InputError);
+    bad = to_json(wide_only);
+    bad["masked_blur_max_fwhm_mm"] = 2;  // below the min
+    EXPECT_THROW(registration_params_from_json(bad, "params"), InputError);
     Registration reg_plain(f.c.volume, f.c.mask, plain), reg_masked(f.c.volume, f.c.mask, masked),
-        reg_wide(f.c.volume, f.c.mask, wide_only);
+        reg_wide(f.c.volume, f.c.mask, wide_only), reg_narrow(f.c.volume, f.c.mask, narrow_only);
     const StageParams& screen = plain.search_stages.front();  // FWHM 8 mm
     const StageParams& final_stage = plain.final_stages.front();  // FWHM 2 mm
     ASSERT_GE(screen.fwhm_mm, 3);
@@ -720,6 +728,9 @@ TEST(Registration, TheMaskedBlurCanBeKeptToTheWideStages) {
         EXPECT_EQ(w_screen, reg_masked.score(f.c.photo, T_true, T_true, screen).similarity);
         EXPECT_EQ(w_final, reg_plain.score(f.c.photo, T_true, T_true, final_stage).similarity);
         EXPECT_NE(w_final, reg_masked.score(f.c.photo, T_true, T_true, final_stage).similarity);
+        // And the other way round.
+        EXPECT_EQ(reg_narrow.score(f.c.photo, T_true, T_true, screen).similarity, reg_plain.score(f.c.photo, T_true, T_true, screen).similarity);
+        EXPECT_EQ(reg_narrow.score(f.c.photo, T_true, T_true, final_stage).similarity, reg_masked.score(f.c.photo, T_true, T_true, final_stage).similarity);
     }
 }
 

@@ -107,10 +107,11 @@ struct RegistrationParams {
     ///   and only what the mask drops inside it is left out.
     /// Without an ROI, "roi" is the plain blur and "usable_and_outside" is "usable".
     std::string masked_blur_over = "usable";
-    /// With masked_blur, only stages whose blur is at least this wide (FWHM, mm) use it; the
-    /// narrower ones (the final FWHM 2 mm stages) blur plainly. The leak is widest at the
-    /// screens' 8 mm, where the basin is chosen; the final fit is made at 2 mm. 0: every stage.
+    /// With masked_blur, only the stages whose blur (FWHM, mm) lies in [min, max] use it; the
+    /// others blur plainly. The defaults, 0 and 100, take every stage. The screens (8 and 4 mm)
+    /// choose the basin, where the leak is widest; the final stages (2 mm) make the fit.
     double masked_blur_min_fwhm_mm = 0;
+    double masked_blur_max_fwhm_mm = 100;
     /// Soft prior: penalty weight * max(0, rms - rms_landmark - tolerance)^2, rms in pixels at
     /// 375 px width. Holds depth and tilt, which a single photo barely constrains. 0 disables.
     double landmark_prior_weight = 0.01;
