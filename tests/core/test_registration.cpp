@@ -237,9 +237,10 @@ TEST(Registration, ParametersRoundTripAndRejectNonsense) {
     bad["vessel_mask_window"] = 0;  // the plain median and MAD: allowed, and kept
     EXPECT_EQ(registration_params_from_json(bad, "params").vessel_mask_window, 0);
     bad = to_json(RegistrationParams::defaults());
-    EXPECT_EQ(bad["masked_blur"], false);  // opt-in
-    bad["masked_blur"] = true;
-    EXPECT_TRUE(registration_params_from_json(bad, "params").masked_blur);
+    EXPECT_EQ(bad["masked_blur"], true);  // thirty-eighth session: the final stages only
+    EXPECT_EQ(bad["masked_blur_max_fwhm_mm"], 3.0);
+    bad["masked_blur"] = false;
+    EXPECT_FALSE(registration_params_from_json(bad, "params").masked_blur);
     bad["masked_blur"] = "yes";
     EXPECT_THROW(registration_params_from_json(bad, "params"), InputError);
 }
@@ -667,8 +668,10 @@ TEST(Registration, TheMaskedBlurLeavesTheSimilarityBlindToWhatLiesOutsideTheRoi)
     painted.photo_bgr.setTo(cv::Scalar(0, 0, 0), near_roi == 0);
     ASSERT_GT(cv::countNonZero(near_roi == 0), painted.photo_bgr.total() / 10);
     RegistrationParams plain = RegistrationParams::defaults();
+    plain.masked_blur = false;
     RegistrationParams masked = plain;
     masked.masked_blur = true;
+    masked.masked_blur_max_fwhm_mm = 100;  // every stage
     // masked_blur_over "roi": the whole ROI, what the mask drops inside it included, and again
     // nothing outside it.
     RegistrationParams over_roi = masked;
@@ -699,14 +702,17 @@ TEST(Registration, TheMaskedBlurCanBeKeptToTheWideStages) {
     ASSERT_TRUE(f.c.spec.truth.has_value());
     const Pose T_true = f.c.spec.truth->T_camera_from_world;
     RegistrationParams plain = RegistrationParams::defaults();
+    plain.masked_blur = false;
     RegistrationParams masked = plain;
     masked.masked_blur = true;
+    masked.masked_blur_max_fwhm_mm = 100;  // every stage
     RegistrationParams wide_only = masked;
     wide_only.masked_blur_min_fwhm_mm = 3;
     RegistrationParams narrow_only = masked;
     narrow_only.masked_blur_max_fwhm_mm = 3;
     EXPECT_EQ(RegistrationParams::defaults().masked_blur_min_fwhm_mm, 0);
-    EXPECT_EQ(RegistrationParams::defaults().masked_blur_max_fwhm_mm, 100);
+    EXPECT_EQ(RegistrationParams::defaults().masked_blur_max_fwhm_mm, 3);  // the final stages only
+    EXPECT_EQ(RegistrationParams().masked_blur_max_fwhm_mm, 100);  // the struct's own: every stage
     EXPECT_EQ(registration_params_from_json(to_json(wide_only), "params").masked_blur_min_fwhm_mm, 3);
     EXPECT_EQ(registration_params_from_json(to_json(narrow_only), "params").masked_blur_max_fwhm_mm, 3);
     nlohmann::json bad = to_json(wide_only);
@@ -750,8 +756,10 @@ TEST(Registration, TheMaskedBlurInsideTheRoiOnlyStillSeesWhatLiesOutsideIt) {
     cv::dilate(roi, near_roi, cv::getStructuringElement(cv::MORPH_ELLIPSE, cv::Size(2 * reach + 1, 2 * reach + 1)));
     painted.photo_bgr.setTo(cv::Scalar(0, 0, 0), near_roi == 0);
     RegistrationParams plain = RegistrationParams::defaults();
+    plain.masked_blur = false;
     RegistrationParams whole = plain;
     whole.masked_blur = true;
+    whole.masked_blur_max_fwhm_mm = 100;  // every stage
     RegistrationParams inside = whole;
     inside.masked_blur_over = "usable_and_outside";
     EXPECT_EQ(RegistrationParams::defaults().masked_blur_over, "usable");  // the thirty-seventh session's form

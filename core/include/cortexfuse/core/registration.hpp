@@ -95,8 +95,8 @@ struct RegistrationParams {
     /// Blur photo and rendering over the usable pixels only (a normalised convolution with the
     /// photo's mask, for the stage's blur and the high-pass alike): with a plain blur, gauze,
     /// blood, vessels and glare, which the mask drops, still spread their light into the usable
-    /// pixels around them, most at FWHM 8 mm. false: the plain blur (opt-in, thirty-seventh
-    /// session, docs/registration.md).
+    /// pixels around them. false: the plain blur. The defaults turn it on for the FWHM 2 mm
+    /// stages only (masked_blur_max_fwhm_mm 3, thirty-eighth session, docs/registration.md).
     bool masked_blur = false;
     /// With masked_blur, the pixels the blur reads:
     /// - "usable": the photo's usable pixels, the ROI less glare, vessels, gauze and blood (the
