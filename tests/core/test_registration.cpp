@@ -649,6 +649,22 @@ TEST(Registration, AnOuterRayStrideKeepsTheSimilarityLandscape) {
     EXPECT_EQ(registration_params_from_json(to_json(strided), "params").outer_ray_stride, 2);
 }
 
+// The photo painted black everywhere a few pixels beyond its ROI (a working level's area resize
+// averages up to full / working pixels across the ROI's edge, so the ROI's own pixels stay as
+// they were).
+namespace {
+PhotoInput painted_beyond_roi(const PhotoInput& photo) {
+    PhotoInput painted = photo;
+    painted.photo_bgr = photo.photo_bgr.clone();
+    const cv::Mat roi = roi_mask(*painted.roi, painted.photo_bgr.cols, painted.photo_bgr.rows);
+    cv::Mat near_roi;
+    const int reach = 2 * painted.photo_bgr.cols / 96 + 3;
+    cv::dilate(roi, near_roi, cv::getStructuringElement(cv::MORPH_ELLIPSE, cv::Size(2 * reach + 1, 2 * reach + 1)));
+    painted.photo_bgr.setTo(cv::Scalar(0, 0, 0), near_roi == 0);
+    return painted;
+}
+}  // namespace
+
 // RegistrationParams::masked_blur: only usable pixels reach the blurred photo. Whatever lies
 // outside the ROI (skin, drapes, bone; with the plain blur their light spreads into the ROI's
 // edge, most at FWHM 8 mm) then leaves the similarity exactly as it was.
@@ -657,16 +673,10 @@ TEST(Registration, TheMaskedBlurLeavesTheSimilarityBlindToWhatLiesOutsideTheRoi)
     ASSERT_TRUE(f.c.spec.truth.has_value());
     ASSERT_TRUE(f.c.photo.roi.has_value());
     const Pose T_true = f.c.spec.truth->T_camera_from_world;
-    PhotoInput painted = f.c.photo;
-    painted.photo_bgr = f.c.photo.photo_bgr.clone();
-    // Paint everything a few pixels beyond the ROI black (a working level's area resize averages
-    // up to full / working pixels across its edge, so the ROI's own pixels stay as they were).
-    const cv::Mat roi = roi_mask(*painted.roi, painted.photo_bgr.cols, painted.photo_bgr.rows);
-    cv::Mat near_roi;
-    const int reach = 2 * painted.photo_bgr.cols / 96 + 3;
-    cv::dilate(roi, near_roi, cv::getStructuringElement(cv::MORPH_ELLIPSE, cv::Size(2 * reach + 1, 2 * reach + 1)));
-    painted.photo_bgr.setTo(cv::Scalar(0, 0, 0), near_roi == 0);
-    ASSERT_GT(cv::countNonZero(near_roi == 0), painted.photo_bgr.total() / 10);
+    const PhotoInput painted = painted_beyond_roi(f.c.photo);
+    cv::Mat black;
+    cv::inRange(painted.photo_bgr, cv::Scalar(0, 0, 0), cv::Scalar(0, 0, 0), black);
+    ASSERT_GT(cv::countNonZero(black), painted.photo_bgr.total() / 10) << "too little painted to show anything";
     RegistrationParams plain = RegistrationParams::defaults();
     plain.masked_blur = false;
     RegistrationParams masked = plain;
@@ -748,13 +758,7 @@ TEST(Registration, TheMaskedBlurInsideTheRoiOnlyStillSeesWhatLiesOutsideIt) {
     ASSERT_TRUE(f.c.spec.truth.has_value());
     ASSERT_TRUE(f.c.photo.roi.has_value());
     const Pose T_true = f.c.spec.truth->T_camera_from_world;
-    PhotoInput painted = f.c.photo;
-    painted.photo_bgr = f.c.photo.photo_bgr.clone();
-    const cv::Mat roi = roi_mask(*painted.roi, painted.photo_bgr.cols, painted.photo_bgr.rows);
-    cv::Mat near_roi;
-    const int reach = 2 * painted.photo_bgr.cols / 96 + 3;
-    cv::dilate(roi, near_roi, cv::getStructuringElement(cv::MORPH_ELLIPSE, cv::Size(2 * reach + 1, 2 * reach + 1)));
-    painted.photo_bgr.setTo(cv::Scalar(0, 0, 0), near_roi == 0);
+    const PhotoInput painted = painted_beyond_roi(f.c.photo);
     RegistrationParams plain = RegistrationParams::defaults();
     plain.masked_blur = false;
     RegistrationParams whole = plain;
