@@ -663,6 +663,14 @@ PhotoInput painted_beyond_roi(const PhotoInput& photo) {
     painted.photo_bgr.setTo(cv::Scalar(0, 0, 0), near_roi == 0);
     return painted;
 }
+
+// The defaults with the plain blur (false) or with the masked blur on every stage (true).
+RegistrationParams defaults_with_blur(bool masked) {
+    RegistrationParams p = RegistrationParams::defaults();
+    p.masked_blur = masked;
+    p.masked_blur_max_fwhm_mm = 100;
+    return p;
+}
 }  // namespace
 
 // RegistrationParams::masked_blur: only usable pixels reach the blurred photo. Whatever lies
@@ -677,11 +685,8 @@ TEST(Registration, TheMaskedBlurLeavesTheSimilarityBlindToWhatLiesOutsideTheRoi)
     cv::Mat black;
     cv::inRange(painted.photo_bgr, cv::Scalar(0, 0, 0), cv::Scalar(0, 0, 0), black);
     ASSERT_GT(cv::countNonZero(black), painted.photo_bgr.total() / 10) << "too little painted to show anything";
-    RegistrationParams plain = RegistrationParams::defaults();
-    plain.masked_blur = false;
-    RegistrationParams masked = plain;
-    masked.masked_blur = true;
-    masked.masked_blur_max_fwhm_mm = 100;  // every stage
+    const RegistrationParams plain = defaults_with_blur(false);
+    const RegistrationParams masked = defaults_with_blur(true);
     // masked_blur_over "roi": the whole ROI, what the mask drops inside it included, and again
     // nothing outside it.
     RegistrationParams over_roi = masked;
@@ -711,11 +716,8 @@ TEST(Registration, TheMaskedBlurCanBeKeptToTheWideStages) {
     const Fixture& f = fixture();
     ASSERT_TRUE(f.c.spec.truth.has_value());
     const Pose T_true = f.c.spec.truth->T_camera_from_world;
-    RegistrationParams plain = RegistrationParams::defaults();
-    plain.masked_blur = false;
-    RegistrationParams masked = plain;
-    masked.masked_blur = true;
-    masked.masked_blur_max_fwhm_mm = 100;  // every stage
+    const RegistrationParams plain = defaults_with_blur(false);
+    const RegistrationParams masked = defaults_with_blur(true);
     RegistrationParams wide_only = masked;
     wide_only.masked_blur_min_fwhm_mm = 3;
     RegistrationParams narrow_only = masked;
@@ -759,11 +761,8 @@ TEST(Registration, TheMaskedBlurInsideTheRoiOnlyStillSeesWhatLiesOutsideIt) {
     ASSERT_TRUE(f.c.photo.roi.has_value());
     const Pose T_true = f.c.spec.truth->T_camera_from_world;
     const PhotoInput painted = painted_beyond_roi(f.c.photo);
-    RegistrationParams plain = RegistrationParams::defaults();
-    plain.masked_blur = false;
-    RegistrationParams whole = plain;
-    whole.masked_blur = true;
-    whole.masked_blur_max_fwhm_mm = 100;  // every stage
+    const RegistrationParams plain = defaults_with_blur(false);
+    const RegistrationParams whole = defaults_with_blur(true);
     RegistrationParams inside = whole;
     inside.masked_blur_over = "usable_and_outside";
     EXPECT_EQ(RegistrationParams::defaults().masked_blur_over, "usable");  // the thirty-seventh session's form
