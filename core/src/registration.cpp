@@ -681,7 +681,8 @@ struct Level {
     double blurred_fwhm_mm = -1;
     std::vector<uint8_t> ray_mask;  // the rays cast for `ray_mask_fwhm_mm` (outer_ray_stride > 1)
     double ray_mask_fwhm_mm = -1;
-    // masked_blur: the usable mask as 0/1 floats, and its blur per FWHM (the normaliser).
+    // masked_blur: the pixels it reads (masked_blur_over) as 0/1 floats, and their blur per
+    // FWHM (the normaliser).
     cv::Mat roi;  // the ROI at this level (empty without one)
     cv::Mat valid_f;
     std::map<double, cv::Mat> valid_blur;
@@ -972,8 +973,9 @@ private:
         return mixed_;
     }
 
-    /// blur_fwhm_mm(), or with masked_blur blur_fwhm_mm_masked() over the photo's usable pixels,
-    /// the blurred mask cached per level and FWHM.
+    /// blur_fwhm_mm(), or when masked blur_fwhm_mm_masked() over the pixels masked_blur_over
+    /// names (the photo's usable ones by default), that support and its blur cached per level
+    /// and FWHM.
     void blur(const cv::Mat& src, cv::Mat& dst, double fwhm_mm, Level& L, bool masked) {
         if (!masked) {
             blur_fwhm_mm(src, dst, fwhm_mm, L.K.fx, depth_mm_);
@@ -981,8 +983,10 @@ private:
         }
         if (L.valid_f.empty()) {
             L.photo.valid.convertTo(L.valid_f, CV_32F, 1.0 / 255.0);
-            if (p_.masked_blur_over == "roi")
-                L.valid_f.setTo(1.f, L.roi.empty() ? cv::Mat(L.valid_f.size(), CV_8U, cv::Scalar(255)) : L.roi);
+            if (p_.masked_blur_over == "roi" && L.roi.empty())
+                L.valid_f.setTo(1.f);  // no ROI: every pixel, the plain blur
+            else if (p_.masked_blur_over == "roi")
+                L.valid_f.setTo(1.f, L.roi);
             else if (p_.masked_blur_over == "usable_and_outside" && !L.roi.empty())
                 L.valid_f.setTo(1.f, L.roi == 0);
         }

@@ -651,17 +651,22 @@ TEST(Registration, AnOuterRayStrideKeepsTheSimilarityLandscape) {
 
 // The photo painted black everywhere a few pixels beyond its ROI (a working level's area resize
 // averages up to full / working pixels across the ROI's edge, so the ROI's own pixels stay as
-// they were).
+// they were), and how many pixels were painted.
 namespace {
-PhotoInput painted_beyond_roi(const PhotoInput& photo) {
-    PhotoInput painted = photo;
-    painted.photo_bgr = photo.photo_bgr.clone();
-    const cv::Mat roi = roi_mask(*painted.roi, painted.photo_bgr.cols, painted.photo_bgr.rows);
+struct PaintedPhoto {
+    PhotoInput photo;
+    int painted_px = 0;
+};
+PaintedPhoto painted_beyond_roi(const PhotoInput& photo) {
+    PaintedPhoto out{photo};
+    out.photo.photo_bgr = photo.photo_bgr.clone();
+    const cv::Mat roi = roi_mask(*photo.roi, photo.photo_bgr.cols, photo.photo_bgr.rows);
     cv::Mat near_roi;
-    const int reach = 2 * painted.photo_bgr.cols / 96 + 3;
+    const int reach = 2 * photo.photo_bgr.cols / 96 + 3;
     cv::dilate(roi, near_roi, cv::getStructuringElement(cv::MORPH_ELLIPSE, cv::Size(2 * reach + 1, 2 * reach + 1)));
-    painted.photo_bgr.setTo(cv::Scalar(0, 0, 0), near_roi == 0);
-    return painted;
+    out.photo.photo_bgr.setTo(cv::Scalar(0, 0, 0), near_roi == 0);
+    out.painted_px = cv::countNonZero(near_roi == 0);
+    return out;
 }
 
 // The defaults with the plain blur (false) or with the masked blur on every stage (true).
@@ -681,10 +686,9 @@ TEST(Registration, TheMaskedBlurLeavesTheSimilarityBlindToWhatLiesOutsideTheRoi)
     ASSERT_TRUE(f.c.spec.truth.has_value());
     ASSERT_TRUE(f.c.photo.roi.has_value());
     const Pose T_true = f.c.spec.truth->T_camera_from_world;
-    const PhotoInput painted = painted_beyond_roi(f.c.photo);
-    cv::Mat black;
-    cv::inRange(painted.photo_bgr, cv::Scalar(0, 0, 0), cv::Scalar(0, 0, 0), black);
-    ASSERT_GT(cv::countNonZero(black), painted.photo_bgr.total() / 10) << "too little painted to show anything";
+    const PaintedPhoto p = painted_beyond_roi(f.c.photo);
+    const PhotoInput& painted = p.photo;
+    ASSERT_GT(p.painted_px, painted.photo_bgr.total() / 10) << "too little painted to show anything";
     const RegistrationParams plain = defaults_with_blur(false);
     const RegistrationParams masked = defaults_with_blur(true);
     // masked_blur_over "roi": the whole ROI, what the mask drops inside it included, and again
@@ -760,7 +764,7 @@ TEST(Registration, TheMaskedBlurInsideTheRoiOnlyStillSeesWhatLiesOutsideIt) {
     ASSERT_TRUE(f.c.spec.truth.has_value());
     ASSERT_TRUE(f.c.photo.roi.has_value());
     const Pose T_true = f.c.spec.truth->T_camera_from_world;
-    const PhotoInput painted = painted_beyond_roi(f.c.photo);
+    const PhotoInput painted = painted_beyond_roi(f.c.photo).photo;
     const RegistrationParams plain = defaults_with_blur(false);
     const RegistrationParams whole = defaults_with_blur(true);
     RegistrationParams inside = whole;
