@@ -19,10 +19,42 @@ namespace cf::cli {
 
 namespace {
 struct LandscapeCmd {
-    std::string case_dir, out, params_file, about = "truth", renderer = "cpu", pose_file;
+    std::string case_dir, out, params_file, about = "truth", renderer = "cpu", pose_file, inputs_out;
     double fwhm_mm = 4, range_mm = 10, range_deg = 10;
     int width_px = 190, steps = 41;
 };
+/// Three panels side by side, each at least 400 px wide: filtered photo, filtered rendering,
+/// and the two overlaid, with the pixels the similarity does not count dimmed in all three.
+void write_inputs(const Registration::SimilarityInputs& in, const std::string& path) {
+    const double scale = std::max(1.0, std::ceil(400.0 / in.photo.cols));
+    const cv::Size size(int(in.photo.cols * scale), int(in.photo.rows * scale));
+    auto grey8 = [&](const cv::Mat& f) {
+        cv::Mat g;
+        f.convertTo(g, CV_8U, 255.0);  // the filters leave [0, 1] over the usable pixels
+        return g;
+    };
+    const cv::Mat photo = grey8(in.photo), rendered = grey8(in.rendered);
+    cv::Mat overlay;
+    cv::merge(std::vector<cv::Mat>{photo, rendered, photo}, overlay);  // BGR: magenta photo, green rendering
+    std::vector<cv::Mat> panels;
+    for (const cv::Mat& m : {photo, rendered, overlay}) {
+        cv::Mat bgr;
+        if (m.channels() == 1) cv::cvtColor(m, bgr, cv::COLOR_GRAY2BGR);
+        else bgr = m.clone();
+        bgr.setTo(cv::Scalar(60, 30, 30), in.usable == 0);  // dark blue-grey: not counted
+        cv::resize(bgr, bgr, size, 0, 0, cv::INTER_NEAREST);
+        panels.push_back(bgr);
+    }
+    cv::Mat row;
+    cv::hconcat(panels, row);
+    cv::Mat img(row.rows + 26, row.cols, CV_8UC3, cv::Scalar(255, 255, 255));
+    row.copyTo(img(cv::Rect(0, 26, row.cols, row.rows)));
+    char label[160];
+    std::snprintf(label, sizeof label, "photo | rendering | overlay (photo magenta, rendering green); similarity %.4f; %dx%d px",
+                  in.similarity, in.photo.cols, in.photo.rows);
+    cv::putText(img, label, {8, 18}, cv::FONT_HERSHEY_SIMPLEX, 0.5, cv::Scalar(0, 0, 0));
+    if (!cv::imwrite(path, img)) throw InputError(path, "cannot write PNG");
+}
 }  // namespace
 
 void add_landscape(CLI::App& app) {
@@ -39,6 +71,9 @@ void add_landscape(CLI::App& app) {
     sub->add_option("--range-mm", o->range_mm, "Translation range +-")->capture_default_str();
     sub->add_option("--range-deg", o->range_deg, "Rotation range +-")->capture_default_str();
     sub->add_option("--steps", o->steps, "Samples per parameter")->capture_default_str();
+    sub->add_option("--inputs", o->inputs_out,
+                    "Also write a PNG of what the similarity compares at the pose: the filtered photo, the "
+                    "filtered rendering, both overlaid (photo magenta, rendering green), unusable pixels dimmed");
     sub->add_option("--renderer", o->renderer, "Ray caster for the similarity: cpu, gl (EGL/OpenGL) or auto")
         ->capture_default_str();
     sub->callback([o] {
@@ -62,6 +97,7 @@ void add_landscape(CLI::App& app) {
             StageParams st;
             st.fwhm_mm = o->fwhm_mm;
             st.render_width_px = o->width_px;
+            if (!o->inputs_out.empty()) write_inputs(reg.similarity_inputs(c.photo, T, T, st), o->inputs_out);
             const SimilaritySweep sw = reg.sweep(c.photo, T, st, o->range_mm, o->range_deg, o->steps);
             // 3 x 2 panels.
             const int pw = 300, ph = 216, pb = 46, W = pw * 3, H = ph * 2 + 30;  // pb: below the frame

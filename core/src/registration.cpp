@@ -876,6 +876,14 @@ public:
         return sim_.evaluate(metric_, rendered_blur_, L.photo_blur, L.photo.valid);
     }
 
+    /// What the last similarity() at `st` compared (copies): see Registration::SimilarityInputs.
+    void last_inputs(const StageParams& st, cv::Mat& photo, cv::Mat& rendered, cv::Mat& usable) {
+        Level& L = level(width_for(st));
+        photo = L.photo_blur.clone();
+        rendered = rendered_blur_.clone();
+        usable = L.photo.valid.clone();
+    }
+
 private:
     /// The rays a stage casts (RegistrationParams::outer_ray_stride): every pixel within the
     /// reach of its blur's kernel (4 sigma, OpenCV's cut, plus one pixel) of a usable one, and
@@ -1104,6 +1112,16 @@ Registration::PoseScore Registration::score(const PhotoInput& in, const Pose& T,
     s.similarity = scorer.similarity(T, stage);
     s.cost = -s.similarity + prior(T);
     return s;
+}
+
+Registration::SimilarityInputs Registration::similarity_inputs(const PhotoInput& in, const Pose& T, const Pose& T_reference,
+                                                               const StageParams& stage) {
+    Scorer scorer(in, params_, *renderer_);
+    scorer.set_pivot(scorer.find_pivot_world(T_reference), T_reference);
+    SimilarityInputs out;
+    out.similarity = scorer.similarity(T, stage);
+    scorer.last_inputs(stage, out.photo, out.rendered, out.usable);
+    return out;
 }
 
 namespace {

@@ -124,3 +124,48 @@ TEST(LandscapeCli, APoseFileIsSweptAboutAsTheTruthIsAndABadOneIsNamed) {
     EXPECT_FALSE(fs::exists(work / "s.png"));
     fs::remove_all(work);
 }
+
+// --inputs: the photo and rendering as the similarity compares them, side by side and overlaid.
+// Three panels of one size; where the ROI's margin lies the panels carry the "not counted"
+// colour, and the ROI itself shows the images. An unwritable path is one line naming it.
+TEST(LandscapeCli, TheInputsPictureShowsThePhotoAndRenderingTheSimilarityCompared) {
+    const fs::path c = test::base_cases() / "small";
+    const fs::path work = test::fresh_dir("landscape_inputs");
+    const fs::path inputs = work / "inputs.png";
+    const auto r = run_landscape({c.string(), "--out", (work / "l.png").string(), "--inputs", inputs.string(), "--steps",
+                                  "3", "--width-px", "96"});
+    ASSERT_EQ(r.exit_code, 0) << r.err;
+    const cv::Mat picture = cv::imread(inputs.string(), cv::IMREAD_COLOR);
+    ASSERT_FALSE(picture.empty());
+    ASSERT_EQ(picture.cols % 3, 0);
+    const int pw = picture.cols / 3;
+    EXPECT_GE(pw, 400);
+    const cv::Mat panels = picture(cv::Rect(0, 26, picture.cols, picture.rows - 26));
+    const cv::Vec3b not_counted(60, 30, 30);
+    for (int k = 0; k < 3; ++k) {
+        const cv::Mat panel = panels(cv::Rect(k * pw, 0, pw, panels.rows));
+        int dimmed = 0, shown = 0;
+        for (int y = 0; y < panel.rows; ++y)
+            for (int x = 0; x < panel.cols; ++x) (panel.at<cv::Vec3b>(y, x) == not_counted ? dimmed : shown)++;
+        EXPECT_GT(dimmed, 0) << "panel " << k;
+        EXPECT_GT(shown, panel.rows * panel.cols / 10) << "panel " << k;
+    }
+    // The photo panel is grey; the overlay has the two in different channels, so it is not.
+    cv::Mat photo_panel = panels(cv::Rect(0, 0, pw, panels.rows)), overlay = panels(cv::Rect(2 * pw, 0, pw, panels.rows));
+    std::vector<cv::Mat> ch;
+    cv::split(photo_panel, ch);
+    cv::Mat shown_mask;
+    cv::inRange(photo_panel, cv::Scalar(60, 30, 30), cv::Scalar(60, 30, 30), shown_mask);
+    cv::bitwise_not(shown_mask, shown_mask);
+    EXPECT_EQ(cv::norm(ch[0], ch[1], cv::NORM_L1, shown_mask), 0);
+    cv::split(overlay, ch);
+    EXPECT_GT(cv::norm(ch[0], ch[1], cv::NORM_L1, shown_mask), 0);
+
+    const auto bad = run_landscape({c.string(), "--out", (work / "m.png").string(), "--inputs",
+                                    (work / "no_such_dir" / "i.png").string(), "--steps", "3", "--width-px", "96"});
+    EXPECT_NE(bad.exit_code, 0);
+    EXPECT_NE(bad.err.find("no_such_dir"), std::string::npos) << bad.err;
+    EXPECT_EQ(std::count(bad.err.begin(), bad.err.end(), '\n'), 1) << bad.err;
+    EXPECT_FALSE(fs::exists(work / "m.png"));
+    fs::remove_all(work);
+}

@@ -15,6 +15,7 @@
 #include "cortexfuse/core/phantom.hpp"
 #include "cortexfuse/core/registration.hpp"
 #include "cortexfuse/core/roi.hpp"
+#include "cortexfuse/core/similarity.hpp"
 #include "../remove_dir_guard.hpp"
 
 namespace fs = std::filesystem;
@@ -754,6 +755,44 @@ TEST(Registration, TheMaskedBlurCanBeKeptToTheWideStages) {
         EXPECT_EQ(reg_narrow.score(f.c.photo, T_true, T_true, screen).similarity, reg_plain.score(f.c.photo, T_true, T_true, screen).similarity);
         EXPECT_EQ(reg_narrow.score(f.c.photo, T_true, T_true, final_stage).similarity, reg_masked.score(f.c.photo, T_true, T_true, final_stage).similarity);
     }
+}
+
+// similarity_inputs(), the picture `landscape --inputs` draws: what a person is shown is what the
+// similarity compared. Its similarity is score()'s at the same pose, the metric over its own
+// images and mask gives that value back, and the mask is the ROI less what photo_channel() drops.
+TEST(Registration, TheSimilarityInputsAreWhatTheSimilarityCompared) {
+    const Fixture& f = fixture();
+    ASSERT_TRUE(f.c.spec.truth.has_value());
+    const Pose T_true = f.c.spec.truth->T_camera_from_world;
+    const RegistrationParams p = RegistrationParams::defaults();
+    Registration reg(f.c.volume, f.c.mask, p);
+    Similarity sim(p.bins);
+    sim.set_linear_binning(p.binning == "linear");
+    std::vector<cv::Mat> photos;
+    for (const StageParams* st : {&p.search_stages.front(), &p.final_stages.front()}) {
+        const Registration::SimilarityInputs in = reg.similarity_inputs(f.c.photo, T_true, T_true, *st);
+        EXPECT_EQ(in.similarity, reg.score(f.c.photo, T_true, T_true, *st).similarity);
+        ASSERT_EQ(in.photo.type(), CV_32F);
+        ASSERT_EQ(in.rendered.type(), CV_32F);
+        ASSERT_EQ(in.usable.type(), CV_8U);
+        ASSERT_EQ(in.photo.size(), in.rendered.size());
+        ASSERT_EQ(in.photo.size(), in.usable.size());
+        EXPECT_NEAR(sim.evaluate(metric_from_name(p.metric), in.rendered, in.photo, in.usable), in.similarity, 1e-12);
+        const int usable = cv::countNonZero(in.usable);
+        EXPECT_GE(usable, 50);
+        EXPECT_LT(usable, int(in.usable.total()));  // the crop's margin lies outside the ROI
+        photos.push_back(in.photo);
+    }
+    // Each stage at its own size and blur.
+    EXPECT_LT(photos[0].cols, photos[1].cols);
+    // Another pose about the same reference (pivot, blur depth): another rendering, the same photo.
+    const Pose T_aside = apply_params(T_true, Eigen::Vector3d(T_true.topRightCorner<3, 1>()), PoseParams{0, 0, 0, 3, 0, 0});
+    const auto at_true = reg.similarity_inputs(f.c.photo, T_true, T_true, p.final_stages.front());
+    const auto aside = reg.similarity_inputs(f.c.photo, T_aside, T_true, p.final_stages.front());
+    EXPECT_EQ(aside.similarity, reg.score(f.c.photo, T_aside, T_true, p.final_stages.front()).similarity);
+    ASSERT_EQ(at_true.rendered.size(), aside.rendered.size());
+    EXPECT_GT(cv::norm(at_true.rendered, aside.rendered, cv::NORM_L1, at_true.usable), 0);
+    EXPECT_EQ(cv::norm(at_true.photo, aside.photo, cv::NORM_L1), 0);
 }
 
 // masked_blur_over "usable_and_outside": the masked blur drops only what the mask drops inside the ROI,

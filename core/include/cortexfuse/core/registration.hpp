@@ -373,6 +373,17 @@ public:
     PoseScore score(const PhotoInput& in, const Pose& T, const Pose& T_reference, const StageParams& stage,
                     std::optional<Eigen::Vector3d> light_direction_camera = std::nullopt,
                     std::optional<Eigen::Vector3d> light_position_camera_mm = std::nullopt);
+    /// What the similarity compares at `stage` for pose `T` (pivot and blur depth from
+    /// `T_reference`, as score(); headlight, as sweep()), for a person to look at: the photo's channel and the rendering, both filtered by the
+    /// stage's blur (and high-pass), and the photo's usable pixels, all at the stage's working
+    /// size and crop. The images are the engine's own, copied out.
+    struct SimilarityInputs {
+        cv::Mat photo;     // CV_32F, the filtered photo channel
+        cv::Mat rendered;  // CV_32F, the filtered rendering
+        cv::Mat usable;    // CV_8U, 255 where the similarity counts the pixel
+        double similarity = 0;
+    };
+    SimilarityInputs similarity_inputs(const PhotoInput& in, const Pose& T, const Pose& T_reference, const StageParams& stage);
     const RegistrationParams& params() const { return params_; }
     /// The renderer used for the similarity (registration style), e.g. for depth lookups.
     Renderer& renderer() { return *renderer_; }
