@@ -6,6 +6,7 @@
 #include <algorithm>
 #include <cmath>
 #include <iostream>
+#include <optional>
 #include <nlohmann/json.hpp>
 
 #include "commands.hpp"
@@ -64,7 +65,8 @@ void add_landscape(CLI::App& app) {
     sub->add_option("--out", o->out, "PNG to write")->required();
     sub->add_option("--about", o->about, "truth (needs truth.json) or landmarks")->capture_default_str();
     sub->add_option("--pose", o->pose_file,
-                    "JSON with T_camera_from_world (a register result, say) to sweep about instead of --about");
+                    "JSON with T_camera_from_world (a register result, say) to sweep about instead of --about; "
+                    "a result's estimated light (light_position_camera_mm, else light_direction_camera) is used too");
     sub->add_option("--params", o->params_file, "Registration parameters (JSON)");
     sub->add_option("--fwhm-mm", o->fwhm_mm, "Blur FWHM at the cortex")->capture_default_str();
     sub->add_option("--width-px", o->width_px, "Working image width")->capture_default_str();
@@ -83,8 +85,27 @@ void add_landscape(CLI::App& app) {
             if (!o->params_file.empty()) params = registration_params_from_json(read_json_file(o->params_file), o->params_file);
             params.renderer_factory = renderer_factory(parse_renderer_kind(o->renderer));
             Pose T;
+            // The headlight, unless the pose file carries a result's estimated light.
+            std::optional<Eigen::Vector3d> light_direction, light_position_mm;
+            std::string light = "headlight";
             if (!o->pose_file.empty()) {
-                T = parse_pose(read_json_file(o->pose_file), o->pose_file);
+                const nlohmann::json pj = read_json_file(o->pose_file);
+                T = parse_pose(pj, o->pose_file);
+                auto vec3 = [&](const char* key) -> std::optional<Eigen::Vector3d> {
+                    if (!pj.contains(key)) return std::nullopt;
+                    const auto& a = pj.at(key);
+                    if (!a.is_array() || a.size() != 3 || !a[0].is_number() || !a[1].is_number() || !a[2].is_number())
+                        throw InputError(o->pose_file, std::string(key) + " must be an array of 3 numbers");
+                    const Eigen::Vector3d v(a[0].get<double>(), a[1].get<double>(), a[2].get<double>());
+                    if (!v.allFinite()) throw InputError(o->pose_file, std::string(key) + " must be finite");
+                    return v;
+                };
+                light_position_mm = vec3("light_position_camera_mm");
+                light_direction = vec3("light_direction_camera");
+                // (0, 0, -1) is how a result without an estimate reports the headlight.
+                if (light_direction && (*light_direction - Eigen::Vector3d(0, 0, -1)).norm() < 1e-12) light_direction.reset();
+                if (light_position_mm) light = "point";
+                else if (light_direction) light = "distant";
             } else if (o->about == "truth") {
                 if (!c.spec.truth) throw InputError(o->case_dir + "/truth.json", "missing (use --about landmarks)");
                 T = c.spec.truth->T_camera_from_world;
@@ -97,15 +118,15 @@ void add_landscape(CLI::App& app) {
             StageParams st;
             st.fwhm_mm = o->fwhm_mm;
             st.render_width_px = o->width_px;
-            if (!o->inputs_out.empty()) write_inputs(reg.similarity_inputs(c.photo, T, T, st), o->inputs_out);
-            const SimilaritySweep sw = reg.sweep(c.photo, T, st, o->range_mm, o->range_deg, o->steps);
+            if (!o->inputs_out.empty()) write_inputs(reg.similarity_inputs(c.photo, T, T, st, light_direction, light_position_mm), o->inputs_out);
+            const SimilaritySweep sw = reg.sweep(c.photo, T, st, o->range_mm, o->range_deg, o->steps, light_direction, light_position_mm);
             // 3 x 2 panels.
             const int pw = 300, ph = 216, pb = 46, W = pw * 3, H = ph * 2 + 30;  // pb: below the frame
             cv::Mat img(H, W, CV_8UC3, cv::Scalar(255, 255, 255));
             const char* names[6] = {"rx deg", "ry deg", "rz deg", "tx mm", "ty mm", "tz mm"};
             const char* keys[6] = {"rx_deg", "ry_deg", "rz_deg", "tx_mm", "ty_mm", "tz_mm"};
             nlohmann::json j = {{"about", o->pose_file.empty() ? o->about : "pose"}, {"fwhm_mm", o->fwhm_mm}, {"width_px", o->width_px},
-                                {"metric", params.metric}};
+                                {"metric", params.metric}, {"light", light}};
             for (int p = 0; p < 6; ++p) {
                 const auto& xs = sw.offsets[size_t(p)];
                 const auto& ys = sw.similarity[size_t(p)];
@@ -145,7 +166,7 @@ void add_landscape(CLI::App& app) {
                                       {"similarity", ys}};
             }
             const std::string about = o->pose_file.empty() ? "the " + o->about + " pose" : o->pose_file;
-            cv::putText(img, params.metric + " about " + about + " (red line); green: peak", {10, 20},
+            cv::putText(img, params.metric + " about " + about + " (red line), " + light + "; green: peak", {10, 20},
                         cv::FONT_HERSHEY_SIMPLEX, 0.5, cv::Scalar(0, 0, 0));
             if (!cv::imwrite(o->out, img)) throw InputError(o->out, "cannot write PNG");
             std::cout << j.dump() << "\n";

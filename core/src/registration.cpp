@@ -1098,14 +1098,23 @@ private:
 
 }  // namespace
 
+namespace {
+/// A point light at `position_camera_mm` when given, else a distant one from `direction_camera`
+/// when given, else the scorer's headlight (score(), sweep(), similarity_inputs()).
+void set_given_light(Scorer& scorer, const std::optional<Eigen::Vector3d>& direction_camera,
+                     const std::optional<Eigen::Vector3d>& position_camera_mm) {
+    if (position_camera_mm)
+        scorer.set_light({Light::point, {position_camera_mm->x(), position_camera_mm->y(), position_camera_mm->z()}});
+    else if (direction_camera)
+        scorer.set_light({Light::distant, {direction_camera->x(), direction_camera->y(), direction_camera->z()}});
+}
+}  // namespace
+
 Registration::PoseScore Registration::score(const PhotoInput& in, const Pose& T, const Pose& T_reference,
                                             const StageParams& stage, std::optional<Eigen::Vector3d> light,
                                             std::optional<Eigen::Vector3d> light_position_camera_mm) {
     Scorer scorer(in, params_, *renderer_);
-    if (light_position_camera_mm)
-        scorer.set_light({Light::point, {light_position_camera_mm->x(), light_position_camera_mm->y(), light_position_camera_mm->z()}});
-    else if (light)
-        scorer.set_light({Light::distant, {light->x(), light->y(), light->z()}});
+    set_given_light(scorer, light, light_position_camera_mm);
     scorer.set_pivot(scorer.find_pivot_world(T_reference), T_reference);
     const LandmarkPrior prior(in, params_);
     PoseScore s;
@@ -1115,8 +1124,11 @@ Registration::PoseScore Registration::score(const PhotoInput& in, const Pose& T,
 }
 
 Registration::SimilarityInputs Registration::similarity_inputs(const PhotoInput& in, const Pose& T, const Pose& T_reference,
-                                                               const StageParams& stage) {
+                                                               const StageParams& stage,
+                                                               std::optional<Eigen::Vector3d> light_direction_camera,
+                                                               std::optional<Eigen::Vector3d> light_position_camera_mm) {
     Scorer scorer(in, params_, *renderer_);
+    set_given_light(scorer, light_direction_camera, light_position_camera_mm);
     scorer.set_pivot(scorer.find_pivot_world(T_reference), T_reference);
     SimilarityInputs out;
     out.similarity = scorer.similarity(T, stage);
@@ -1151,8 +1163,10 @@ double peak_prominence(const std::vector<double>& offsets, const std::vector<dou
 }
 
 SimilaritySweep Registration::sweep(const PhotoInput& in, const Pose& T_center, const StageParams& stage, double range_mm,
-                                    double range_deg, int steps) {
+                                    double range_deg, int steps, std::optional<Eigen::Vector3d> light_direction_camera,
+                                    std::optional<Eigen::Vector3d> light_position_camera_mm) {
     Scorer scorer(in, params_, *renderer_);
+    set_given_light(scorer, light_direction_camera, light_position_camera_mm);
     SimilaritySweep out;
     out.pivot_world_mm = scorer.find_pivot_world(T_center);
     const Eigen::Vector3d pivot_cam = scorer.set_pivot(out.pivot_world_mm, T_center);

@@ -122,6 +122,29 @@ TEST(LandscapeCli, APoseFileIsSweptAboutAsTheTruthIsAndABadOneIsNamed) {
     EXPECT_NE(r.err.find("scaled.json"), std::string::npos) << r.err;
     EXPECT_EQ(std::count(r.err.begin(), r.err.end(), '\n'), 1) << r.err;
     EXPECT_FALSE(fs::exists(work / "s.png"));
+    // A register result's estimated light is swept under too; a malformed one is named.
+    EXPECT_EQ(a.at("light"), "headlight");
+    json lit = test::read_json(c / "truth.json");
+    lit["light_direction_camera"] = {0, 0, -1};  // how a result without an estimate says headlight
+    test::write_json(work / "headlight.json", lit);
+    const auto by_headlight = run_landscape(args({c.string(), "--out", (work / "h.png").string(), "--pose", (work / "headlight.json").string()}));
+    ASSERT_EQ(by_headlight.exit_code, 0) << by_headlight.err;
+    EXPECT_EQ(json::parse(by_headlight.out).at("axes"), a.at("axes"));
+    lit["light_position_camera_mm"] = {-80, 80, 0};
+    test::write_json(work / "lamp.json", lit);
+    const auto by_lamp = run_landscape(args({c.string(), "--out", (work / "lamp.png").string(), "--pose", (work / "lamp.json").string()}));
+    ASSERT_EQ(by_lamp.exit_code, 0) << by_lamp.err;
+    const json l = json::parse(by_lamp.out);
+    EXPECT_EQ(l.at("light"), "point");
+    EXPECT_NE(l.at("axes"), a.at("axes"));
+    lit["light_position_camera_mm"] = {-80, "up", 0};
+    test::write_json(work / "bad_lamp.json", lit);
+    const auto bad_lamp = run_landscape(args({c.string(), "--out", (work / "b.png").string(), "--pose", (work / "bad_lamp.json").string()}));
+    EXPECT_NE(bad_lamp.exit_code, 0);
+    EXPECT_NE(bad_lamp.err.find("bad_lamp.json"), std::string::npos) << bad_lamp.err;
+    EXPECT_NE(bad_lamp.err.find("light_position_camera_mm"), std::string::npos) << bad_lamp.err;
+    EXPECT_EQ(std::count(bad_lamp.err.begin(), bad_lamp.err.end(), '\n'), 1) << bad_lamp.err;
+    EXPECT_FALSE(fs::exists(work / "b.png"));
     fs::remove_all(work);
 }
 

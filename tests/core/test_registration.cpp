@@ -793,6 +793,13 @@ TEST(Registration, TheSimilarityInputsAreWhatTheSimilarityCompared) {
     ASSERT_EQ(at_true.rendered.size(), aside.rendered.size());
     EXPECT_GT(cv::norm(at_true.rendered, aside.rendered, cv::NORM_L1, at_true.usable), 0);
     EXPECT_EQ(cv::norm(at_true.photo, aside.photo, cv::NORM_L1), 0);
+    // A result's light, as score() takes it: a lamp aside lights the rendering otherwise.
+    const Eigen::Vector3d lamp_mm(-80, 80, 0);
+    const auto lit = reg.similarity_inputs(f.c.photo, T_true, T_true, p.final_stages.front(), std::nullopt, lamp_mm);
+    EXPECT_EQ(lit.similarity, reg.score(f.c.photo, T_true, T_true, p.final_stages.front(), std::nullopt, lamp_mm).similarity);
+    EXPECT_GT(cv::norm(at_true.rendered, lit.rendered, cv::NORM_L1, at_true.usable), 0);
+    const SimilaritySweep lit_sweep = reg.sweep(f.c.photo, T_true, p.final_stages.front(), 2, 2, 3, std::nullopt, lamp_mm);
+    EXPECT_EQ(lit_sweep.similarity[3][1], lit.similarity);  // the middle sample is the pose itself
 }
 
 // masked_blur_over "usable_and_outside": the masked blur drops only what the mask drops inside the ROI,

@@ -358,9 +358,12 @@ public:
     Registration(const Volume& volume, const LabelVolume& brain_mask, RegistrationParams params);
     ~Registration();
     RegistrationResult run(const PhotoInput& in, const Progress* progress = nullptr);
-    /// The similarity landscape about `T_center` at one stage's size and blur (diagnosis).
+    /// The similarity landscape about `T_center` at one stage's size and blur (diagnosis), under
+    /// the light given as for score() (a result's estimate; the headlight when neither is given).
     SimilaritySweep sweep(const PhotoInput& in, const Pose& T_center, const StageParams& stage, double range_mm = 10,
-                          double range_deg = 10, int steps = 41);
+                          double range_deg = 10, int steps = 41,
+                          std::optional<Eigen::Vector3d> light_direction_camera = std::nullopt,
+                          std::optional<Eigen::Vector3d> light_position_camera_mm = std::nullopt);
     /// Similarity and cost (with the landmark prior) of pose `T` as the optimiser sees them at
     /// `stage`, with the pivot and blur depth taken from `T_reference` (the run's start). The
     /// evaluation scores the true pose with it: a final cost below the truth's means the
@@ -373,8 +376,8 @@ public:
     PoseScore score(const PhotoInput& in, const Pose& T, const Pose& T_reference, const StageParams& stage,
                     std::optional<Eigen::Vector3d> light_direction_camera = std::nullopt,
                     std::optional<Eigen::Vector3d> light_position_camera_mm = std::nullopt);
-    /// What the similarity compares at `stage` for pose `T` (pivot and blur depth from
-    /// `T_reference`, as score(); headlight, as sweep()), for a person to look at: the photo's channel and the rendering, both filtered by the
+    /// What the similarity compares at `stage` for pose `T` (pivot, blur depth and light as for
+    /// score()), for a person to look at: the photo's channel and the rendering, both filtered by the
     /// stage's blur (and high-pass), and the photo's usable pixels, all at the stage's working
     /// size and crop. The images are the engine's own, copied out.
     struct SimilarityInputs {
@@ -383,7 +386,9 @@ public:
         cv::Mat usable;    // CV_8U, 255 where the similarity counts the pixel
         double similarity = 0;
     };
-    SimilarityInputs similarity_inputs(const PhotoInput& in, const Pose& T, const Pose& T_reference, const StageParams& stage);
+    SimilarityInputs similarity_inputs(const PhotoInput& in, const Pose& T, const Pose& T_reference, const StageParams& stage,
+                                       std::optional<Eigen::Vector3d> light_direction_camera = std::nullopt,
+                                       std::optional<Eigen::Vector3d> light_position_camera_mm = std::nullopt);
     const RegistrationParams& params() const { return params_; }
     /// The renderer used for the similarity (registration style), e.g. for depth lookups.
     Renderer& renderer() { return *renderer_; }
