@@ -104,6 +104,36 @@ LandmarkFit fit_pose_pnp(const std::vector<Landmark>& lms, const Intrinsics& K) 
     return fit;
 }
 
+LandmarkFit refine_landmark_fit(const std::vector<Landmark>& lms, const Intrinsics& K, const Pose& T_start) {
+    std::vector<cv::Point3d> obj;
+    std::vector<cv::Point2d> img;
+    for (const auto& l : lms) {
+        obj.emplace_back(l.world_mm.x(), l.world_mm.y(), l.world_mm.z());
+        img.emplace_back(l.pixel.x(), l.pixel.y());
+    }
+    const cv::Matx33d Kcv(K.fx, 0, K.cx, 0, K.fy, K.cy, 0, 0, 1);
+    const std::vector<double> dist(K.distortion.begin(), K.distortion.end());
+    cv::Mat R(3, 3, CV_64F), rvec, tvec(3, 1, CV_64F);
+    for (int r = 0; r < 3; ++r) {
+        for (int k = 0; k < 3; ++k) R.at<double>(r, k) = T_start(r, k);
+        tvec.at<double>(r) = T_start(r, 3);
+    }
+    try {
+        cv::Rodrigues(R, rvec);
+        cv::solvePnPRefineLM(obj, img, Kcv, dist, rvec, tvec);
+    } catch (const cv::Exception& e) {
+        throw InputError("landmarks", std::string("refining the fit from the given pose failed: ") + e.what());
+    }
+    LandmarkFit f;
+    f.T_camera_from_world = pose_from_rvec(rvec, tvec);
+    if (!f.T_camera_from_world.allFinite() || !in_front(lms, f.T_camera_from_world))
+        throw InputError("landmarks", "refined from the given pose, the fit puts landmarks behind the camera");
+    f.rms_px = reprojection_rms_px(lms, K, f.T_camera_from_world);
+    f.method = "refined";
+    for (size_t i = 0; i < lms.size(); ++i) f.inliers.push_back(int(i));
+    return f;
+}
+
 double landmark_px_per_mm(const std::vector<Landmark>& lms, const Intrinsics& K, const Pose& T) {
     if (lms.empty()) return 0;
     const double z = (T.topLeftCorner<3, 3>() * landmark_centroid(lms) + T.topRightCorner<3, 1>()).z();

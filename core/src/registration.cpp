@@ -353,6 +353,7 @@ json to_json(const RegistrationParams& p) {
     j["sample_distance_mm"] = p.sample_distance_mm;
     j["depth_along_pivot_ray"] = p.depth_along_pivot_ray;
     j["initial_pose_landmark_moves"] = p.initial_pose_landmark_moves;
+    j["landmark_moves_from_nearest_fit"] = p.landmark_moves_from_nearest_fit;
     j["optimizer"] = p.optimizer;
     j["depth_scan_mm"] = p.depth_scan_mm;
     j["light_after_screen"] = p.light_after_screen;
@@ -422,6 +423,7 @@ RegistrationParams registration_params_from_json(const json& j, const std::strin
         p.sample_distance_mm = j.value("sample_distance_mm", p.sample_distance_mm);
         p.depth_along_pivot_ray = j.value("depth_along_pivot_ray", p.depth_along_pivot_ray);
         p.initial_pose_landmark_moves = j.value("initial_pose_landmark_moves", p.initial_pose_landmark_moves);
+        p.landmark_moves_from_nearest_fit = j.value("landmark_moves_from_nearest_fit", p.landmark_moves_from_nearest_fit);
         p.optimizer = j.value("optimizer", p.optimizer);
         p.depth_scan_mm = j.value("depth_scan_mm", p.depth_scan_mm);
         p.light_after_screen = j.value("light_after_screen", p.light_after_screen);
@@ -482,6 +484,7 @@ json result_to_json(const RegistrationResult& r) {
     j["T_camera_from_world"] = pose_to_json(r.T_camera_from_world);
     j["initial_T_camera_from_world"] = pose_to_json(r.initial_T_camera_from_world);
     j["initial_method"] = r.initial_method;
+    j["landmark_moves_from_fit"] = r.landmark_moves_from_fit;
     j[r.params.metric] = r.similarity;
     j["nmi"] = r.params.metric == "nmi" ? r.similarity : j.value("nmi", r.similarity);
     j["initial_similarity"] = r.initial_similarity;
@@ -1244,12 +1247,30 @@ RegistrationResult Registration::run(const PhotoInput& in, const Progress* progr
     const Eigen::Vector3d pivot_cam = scorer.set_pivot(res.pivot_world_mm, T0);
     std::vector<PoseParams> starts = params_.starts;
     // Each other fit as a move about the pivot from the best one (fits.front()); from the landmarks
-    // alone the best fit is T0, and the move takes T0 to that fit exactly.
+    // alone the best fit is T0, and the move takes T0 to that fit exactly. With
+    // landmark_moves_from_nearest_fit, a given pose's moves start from the fit nearest it.
+    // The fit the moves start from: the best, or with landmark_moves_from_nearest_fit the local
+    // fit the given pose lies in when that is another (over 5 deg from the best; the plain PnP
+    // fit where the planar flip fits better, say), whether or not it is among `fits`.
+    Pose F_from = fits.empty() ? Pose(Pose::Identity()) : fits.front().T_camera_from_world;
+    if (params_.landmark_moves_from_nearest_fit && in.initial_pose && !fits.empty()) {
+        try {
+            const Pose near = refine_landmark_fit(in.landmarks, K, T0).T_camera_from_world;
+            const Eigen::Matrix3d dR = near.topLeftCorner<3, 3>().transpose() * F_from.topLeftCorner<3, 3>();
+            if (Eigen::AngleAxisd(dR).angle() * 180.0 / M_PI > 5.0) {
+                F_from = near;
+                res.landmark_moves_from_fit = 1;
+            }
+        } catch (const InputError&) {
+            // No local fit in front of the camera: the moves start from the best, as without the option.
+        }
+    }
     auto moves_to_others = [&](const std::vector<LandmarkFit>& fit_list, std::vector<PoseParams>& out) {
-        if (fit_list.size() < 2 || fits.empty()) return;
-        const Pose& F = fits.front().T_camera_from_world;
+        if (fits.empty()) return;  // (a list of one, the best, gives no move from the best)
+        const Pose& F = F_from;
         const Eigen::Vector3d pivot_F = F.topLeftCorner<3, 3>() * res.pivot_world_mm + F.topRightCorner<3, 1>();
-        for (size_t i = 1; i < fit_list.size(); ++i) out.push_back(params_between(F, fit_list[i].T_camera_from_world, pivot_F));
+        for (const auto& fit : fit_list)
+            if ((fit.T_camera_from_world - F).norm() > 1e-6) out.push_back(params_between(F, fit.T_camera_from_world, pivot_F));
     };
     moves_to_others(fits, starts);
     // landmark_world_sd_by_image: the moves to the fits within the widened limit, screened under the

@@ -294,6 +294,61 @@ TEST(Registration, ScreensEveryStartThenSearchesOnlyTheKeptOnesAndRefinesTheWinn
 // initial_pose_landmark_moves the moves from their best fit to the others are starts for it too:
 // given that best fit itself, the registration is exactly the one from the landmarks alone.
 // Landmarks nearly on a line give none.
+// landmark_moves_from_nearest_fit: a given pose in another fit's basin (the plain PnP fit where
+// the planar flip fits better) gets the moves from that fit, to the best one among them, so one
+// start lands on the best fit. A pose in the best fit's basin registers exactly as without it.
+TEST(Registration, AGivenPoseInAnotherFitsBasinGetsAMoveToTheBestFit) {
+    const Fixture& f = fixture();
+    const auto fits = pnp_candidates(f.c.photo.landmarks, f.c.photo.camera);
+    ASSERT_GE(fits.size(), 2u) << "the test needs landmarks that more than one pose explains";
+    RegistrationParams p = small_params();
+    p.starts.resize(1);
+    p.search_stages.resize(1);
+    p.search_stages.front().max_evaluations = 1;  // a screen of one evaluation reports its start
+    p.keep_best = 1;
+    p.light_rounds = 1;
+    p.refine_stages.clear();
+    ASSERT_TRUE(p.initial_pose_landmark_moves);
+    const std::string screen = p.search_stages.front().name;
+    auto screens = [&](const RegistrationResult& r) {
+        std::vector<Pose> out;
+        for (const auto& s : r.stages)
+            if (s.name == screen) out.push_back(s.T_camera_from_world);
+        return out;
+    };
+    RegistrationParams q = p;
+    q.landmark_moves_from_nearest_fit = true;
+    EXPECT_EQ(registration_params_from_json(to_json(q), "params").landmark_moves_from_nearest_fit, true);
+    Registration from_best(f.c.volume, f.c.mask, p), from_nearest(f.c.volume, f.c.mask, q);
+
+    // In the best fit's basin (4 mm aside): the same run, stage for stage.
+    PhotoInput aside = f.c.photo;
+    Pose T = fits.front().T_camera_from_world;
+    T(0, 3) += 4.0;
+    aside.initial_pose = T;
+    const RegistrationResult a = from_best.run(aside), b = from_nearest.run(aside);
+    EXPECT_EQ(b.landmark_moves_from_fit, 0);
+    ASSERT_EQ(a.stages.size(), b.stages.size());
+    for (size_t i = 0; i < a.stages.size(); ++i) EXPECT_EQ(a.stages[i].best_cost, b.stages[i].best_cost) << i;
+    EXPECT_EQ(a.T_camera_from_world, b.T_camera_from_world);
+
+    // At another fit: without the option no start reaches the best fit; with it one does.
+    PhotoInput other = f.c.photo;
+    other.initial_pose = fits[1].T_camera_from_world;
+    auto nearest_to_best = [&](const std::vector<Pose>& starts) {
+        double d = 1e300;
+        for (const Pose& S : starts) d = std::min(d, (S - fits.front().T_camera_from_world).norm());
+        return d;
+    };
+    const RegistrationResult before = from_best.run(other), after = from_nearest.run(other);
+    EXPECT_EQ(after.landmark_moves_from_fit, 1);
+    EXPECT_EQ(result_to_json(after)["landmark_moves_from_fit"], 1);
+    EXPECT_GT(nearest_to_best(screens(before)), 1e-2);
+    EXPECT_LT(nearest_to_best(screens(after)), 1e-4);
+    // The given pose, and a move to every fit but the one it lies in.
+    EXPECT_EQ(screens(after).size(), fits.size());
+}
+
 TEST(Registration, AGivenPoseGetsTheLandmarksOtherFitsAsMovesAndTheirBestFitRegistersAsTheLandmarksDo) {
     const Fixture& f = fixture();
     const auto fits = pnp_candidates(f.c.photo.landmarks, f.c.photo.camera);

@@ -346,3 +346,43 @@ TEST(LandmarkFit, TheModelPointsErrorInPixelsWidensTheCandidatesLimit) {
     EXPECT_GE(grew, 3);  // 11 of the 60 draws keep more fits
     EXPECT_TRUE(landmark_fits_within({}, steep_view_landmarks(K, T, 1, 2.0, 1.5), K, 1.5).empty());
 }
+
+// refine_landmark_fit(): the local fit a given pose lies in. From a pose near the best fit it
+// returns the best fit; from the mirror of a steep view it stays in the mirror's basin, which is
+// what lets a given pose there be moved to the best fit (landmark_moves_from_nearest_fit).
+TEST(LandmarkFit, RefiningAPoseFindsTheFitWhoseBasinItLiesIn) {
+    const Intrinsics K = steep_view_camera();
+    const Pose T = steep_view_pose();
+    int two_basins = 0, stays = 0;
+    for (uint32_t seed = 1; seed <= 60; ++seed) {
+        const auto lms = steep_view_landmarks(K, T, seed, 3.0, 0.0);
+        const auto fits = pnp_candidates(lms, K);
+        Pose near_best = fits.front().T_camera_from_world;
+        near_best(0, 3) += 1.0;
+        const LandmarkFit back = refine_landmark_fit(lms, K, near_best);
+        EXPECT_LT(angle_deg(back.T_camera_from_world, fits.front().T_camera_from_world), 1e-3) << seed;
+        EXPECT_NEAR(back.rms_px, fits.front().rms_px, 1e-3) << seed;
+        EXPECT_EQ(back.method, "refined");
+        for (size_t i = 1; i < fits.size(); ++i) {
+            if (angle_deg(fits[i].T_camera_from_world, fits.front().T_camera_from_world) < 20) continue;
+            ++two_basins;
+            // A candidate is where LM stopped (at its iteration limit, on a flat valley), not always
+            // a minimum: refined again it stays in its own basin, away from the best fit, or (once
+            // in these draws) walks on down to the best fit itself; never worse than it was.
+            const LandmarkFit again = refine_landmark_fit(lms, K, fits[i].T_camera_from_world);
+            const double to_own = angle_deg(again.T_camera_from_world, fits[i].T_camera_from_world),
+                         to_best = angle_deg(again.T_camera_from_world, fits.front().T_camera_from_world);
+            EXPECT_TRUE(to_best < 1e-3 || (to_own < to_best && to_best > 10.0)) << seed << " fit " << i << ": " << to_own << " " << to_best;
+            stays += to_best > 10.0;
+            EXPECT_LE(again.rms_px, fits[i].rms_px + 1e-9) << seed << " fit " << i;
+        }
+    }
+    EXPECT_GE(two_basins, 3);
+    EXPECT_GE(stays, two_basins - 1);
+    // A pose that puts the landmarks behind the camera is named.
+    Pose behind = T;
+    behind.topRightCorner<3, 1>() *= -1.0;
+    behind.topLeftCorner<3, 3>() = -behind.topLeftCorner<3, 3>();
+    behind(0, 0) = -behind(0, 0);  // still a rotation
+    EXPECT_THROW(refine_landmark_fit(steep_view_landmarks(K, T, 1, 3.0, 0.0), K, behind), InputError);
+}

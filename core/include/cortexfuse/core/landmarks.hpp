@@ -32,6 +32,9 @@ std::vector<LandmarkFit> pnp_candidates(const std::vector<Landmark>& lms, const 
 /// one PnP pass serves both.
 std::vector<LandmarkFit> landmark_fits_within(std::vector<LandmarkFit> fits, const std::vector<Landmark>& lms,
                                               const Intrinsics& K, double world_sd_mm);
+/// The fit Levenberg-Marquardt reaches from `T_start` (OpenCV solvePnPRefineLM): the local fit a
+/// given pose lies in. Throws InputError when it leaves the points behind the camera.
+LandmarkFit refine_landmark_fit(const std::vector<Landmark>& lms, const Intrinsics& K, const Pose& T_start);
 /// Pixels per mm at the landmarks' centroid seen by T (f / z); 0 if it lies behind the camera.
 double landmark_px_per_mm(const std::vector<Landmark>& lms, const Intrinsics& K, const Pose& T);
 /// The seed's scaled-orthographic variant (affine camera, then orthonormalised), for comparison.

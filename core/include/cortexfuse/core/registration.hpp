@@ -163,6 +163,12 @@ struct RegistrationParams {
     /// landmarks nearly on a line (landmark_spread_warning()), whose other fits only sample the
     /// free turn about it.
     bool initial_pose_landmark_moves = false;
+    /// Those moves start from the local fit the given pose lies in (Levenberg-Marquardt on the
+    /// landmarks from the given pose) when that lies over 5 deg from the best fit, and go to every
+    /// fit, the best included: a pose near another fit (the plain PnP fit where the planar flip
+    /// fits better, even one too poor to be kept among the fits) gets a move to the best one.
+    /// From the landmarks alone, or for a pose in the best fit's basin, nothing changes.
+    bool landmark_moves_from_nearest_fit = false;
     /// Depth scan before the final (and refine) stages: the cost at 2 * depth_scan_steps + 1
     /// points depth_scan_mm apart along the line of sight through the pivot (a pure change of
     /// scale about the ROI), scored at the stage's size and blur; the simplex starts from the
@@ -289,6 +295,9 @@ struct RegistrationResult {
     Pose initial_T_camera_from_world = Pose::Identity();
     std::string initial_method;  // "pnp", "pnp-ransac", "initial_pose"
     double initial_landmark_rms_px = 0, final_landmark_rms_px = 0;
+    /// With a given pose and RegistrationParams::landmark_moves_from_nearest_fit: 1 when the
+    /// moves to the landmarks' fits started from the local fit the pose lies in, 0 from the best.
+    int landmark_moves_from_fit = 0;
     /// The landmarks' spread (case.hpp; both 0 without landmarks) and what a person should know
     /// about this run (e.g. landmarks nearly on a line), in words.
     LandmarkSpread landmark_spread;
