@@ -184,6 +184,12 @@ RegistrationParams RegistrationParams::defaults() {
     // it: protocol chris 1.153 -> 0.979 mm; the other heads as before over 580 paired runs
     // (docs/registration.md, "The landmarks' other fits for a given pose").
     p.initial_pose_landmark_moves = true;
+    // Thirty-ninth session: those moves start from the local fit the given pose lies in when that
+    // is not the best fit's basin (the protocol misaligns about plain PnP, the engine's best fit
+    // can be the planar flip): hb_1751 case 0000 0 -> 10 of 10 protocol runs, rs_1611 case 0002
+    // 0 -> 4; over 1216 paired protocol and wide runs 1137 -> 1154 pass, none lost; from the
+    // landmarks nothing changes (docs/registration.md, "A given pose in another fit's basin").
+    p.landmark_moves_from_nearest_fit = true;
     // Nineteenth session: the best of those fits' starts goes on past the FWHM-8 screen when the
     // screen dropped them all (chris case 0003: in five of ten protocol runs the moved start that
     // leads to the truth lost the 30-evaluation screen to plain starts), and each finalist has the

@@ -316,6 +316,9 @@ TEST(Registration, AGivenPoseInAnotherFitsBasinGetsAMoveToTheBestFit) {
             if (s.name == screen) out.push_back(s.T_camera_from_world);
         return out;
     };
+    EXPECT_TRUE(RegistrationParams::defaults().landmark_moves_from_nearest_fit);  // since the thirty-ninth session
+    EXPECT_FALSE(RegistrationParams().landmark_moves_from_nearest_fit);
+    p.landmark_moves_from_nearest_fit = false;
     RegistrationParams q = p;
     q.landmark_moves_from_nearest_fit = true;
     EXPECT_EQ(registration_params_from_json(to_json(q), "params").landmark_moves_from_nearest_fit, true);
