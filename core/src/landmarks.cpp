@@ -24,6 +24,32 @@ double reprojection_rms_px(const std::vector<Landmark>& lms, const Intrinsics& K
 }
 
 namespace {
+/// The landmark pairs and camera as OpenCV's PnP functions take them.
+struct PnpProblem {
+    std::vector<cv::Point3d> obj;
+    std::vector<cv::Point2d> img;
+    cv::Matx33d Kcv;
+    std::vector<double> dist;
+    PnpProblem(const std::vector<Landmark>& lms, const Intrinsics& K)
+        : Kcv(K.fx, 0, K.cx, 0, K.fy, K.cy, 0, 0, 1), dist(K.distortion.begin(), K.distortion.end()) {
+        for (const auto& l : lms) {
+            obj.emplace_back(l.world_mm.x(), l.world_mm.y(), l.world_mm.z());
+            img.emplace_back(l.pixel.x(), l.pixel.y());
+        }
+    }
+};
+
+/// OpenCV's rotation vector and translation of a pose (what solvePnPRefineLM starts from).
+void rvec_tvec_from_pose(const Pose& T, cv::Mat& rvec, cv::Mat& tvec) {
+    cv::Mat R(3, 3, CV_64F);
+    tvec.create(3, 1, CV_64F);
+    for (int r = 0; r < 3; ++r) {
+        for (int k = 0; k < 3; ++k) R.at<double>(r, k) = T(r, k);
+        tvec.at<double>(r) = T(r, 3);
+    }
+    cv::Rodrigues(R, rvec);
+}
+
 Eigen::Vector3d landmark_centroid(const std::vector<Landmark>& lms) {
     Eigen::Vector3d c = Eigen::Vector3d::Zero();
     for (const auto& l : lms) c += l.world_mm;
@@ -60,14 +86,8 @@ bool in_front(const std::vector<Landmark>& lms, const Pose& T) {
 
 LandmarkFit fit_pose_pnp(const std::vector<Landmark>& lms, const Intrinsics& K) {
     if (lms.size() < 4) throw InputError("landmarks", "needs at least 4 pairs for a pose");
-    std::vector<cv::Point3d> obj;
-    std::vector<cv::Point2d> img;
-    for (const auto& l : lms) {
-        obj.emplace_back(l.world_mm.x(), l.world_mm.y(), l.world_mm.z());
-        img.emplace_back(l.pixel.x(), l.pixel.y());
-    }
-    const cv::Matx33d Kcv(K.fx, 0, K.cx, 0, K.fy, K.cy, 0, 0, 1);
-    const std::vector<double> dist(K.distortion.begin(), K.distortion.end());
+    const PnpProblem pnp(lms, K);
+    const auto& [obj, img, Kcv, dist] = pnp;
     cv::Mat rvec, tvec;
     LandmarkFit fit;
     bool ok = false;
@@ -105,21 +125,11 @@ LandmarkFit fit_pose_pnp(const std::vector<Landmark>& lms, const Intrinsics& K) 
 }
 
 LandmarkFit refine_landmark_fit(const std::vector<Landmark>& lms, const Intrinsics& K, const Pose& T_start) {
-    std::vector<cv::Point3d> obj;
-    std::vector<cv::Point2d> img;
-    for (const auto& l : lms) {
-        obj.emplace_back(l.world_mm.x(), l.world_mm.y(), l.world_mm.z());
-        img.emplace_back(l.pixel.x(), l.pixel.y());
-    }
-    const cv::Matx33d Kcv(K.fx, 0, K.cx, 0, K.fy, K.cy, 0, 0, 1);
-    const std::vector<double> dist(K.distortion.begin(), K.distortion.end());
-    cv::Mat R(3, 3, CV_64F), rvec, tvec(3, 1, CV_64F);
-    for (int r = 0; r < 3; ++r) {
-        for (int k = 0; k < 3; ++k) R.at<double>(r, k) = T_start(r, k);
-        tvec.at<double>(r) = T_start(r, 3);
-    }
+    const PnpProblem pnp(lms, K);
+    const auto& [obj, img, Kcv, dist] = pnp;
+    cv::Mat rvec, tvec;
     try {
-        cv::Rodrigues(R, rvec);
+        rvec_tvec_from_pose(T_start, rvec, tvec);
         cv::solvePnPRefineLM(obj, img, Kcv, dist, rvec, tvec);
     } catch (const cv::Exception& e) {
         throw InputError("landmarks", std::string("refining the fit from the given pose failed: ") + e.what());
@@ -143,14 +153,8 @@ double landmark_px_per_mm(const std::vector<Landmark>& lms, const Intrinsics& K,
 std::vector<LandmarkFit> pnp_candidates(const std::vector<Landmark>& lms, const Intrinsics& K, double world_sd_mm,
                                         double min_sep_deg) {
     std::vector<LandmarkFit> out{fit_pose_pnp(lms, K)};
-    std::vector<cv::Point3d> obj;
-    std::vector<cv::Point2d> img;
-    for (const auto& l : lms) {
-        obj.emplace_back(l.world_mm.x(), l.world_mm.y(), l.world_mm.z());
-        img.emplace_back(l.pixel.x(), l.pixel.y());
-    }
-    const cv::Matx33d Kcv(K.fx, 0, K.cx, 0, K.fy, K.cy, 0, 0, 1);
-    const std::vector<double> dist(K.distortion.begin(), K.distortion.end());
+    const PnpProblem pnp(lms, K);
+    const auto& [obj, img, Kcv, dist] = pnp;
     auto consider = [&](cv::Mat rvec, cv::Mat tvec, const char* method) {
         try {
             cv::solvePnPRefineLM(obj, img, Kcv, dist, rvec, tvec);
@@ -186,13 +190,8 @@ std::vector<LandmarkFit> pnp_candidates(const std::vector<Landmark>& lms, const 
             Pose M = Pose::Identity();
             M.topLeftCorner<3, 3>() = R;
             M.topRightCorner<3, 1>() = pc - R * pc;
-            const Pose T2 = M * T;
-            cv::Mat R2(3, 3, CV_64F), rvec, tvec(3, 1, CV_64F);
-            for (int r = 0; r < 3; ++r) {
-                for (int k = 0; k < 3; ++k) R2.at<double>(r, k) = T2(r, k);
-                tvec.at<double>(r) = T2(r, 3);
-            }
-            cv::Rodrigues(R2, rvec);
+            cv::Mat rvec, tvec;
+            rvec_tvec_from_pose(M * T, rvec, tvec);
             consider(rvec, tvec, method);
         };
         const std::array<Eigen::Vector3d, 4> axes{Eigen::Vector3d(1, 0, 0), Eigen::Vector3d(0, 1, 0),

@@ -335,21 +335,30 @@ TEST(Registration, AGivenPoseInAnotherFitsBasinGetsAMoveToTheBestFit) {
     for (size_t i = 0; i < a.stages.size(); ++i) EXPECT_EQ(a.stages[i].best_cost, b.stages[i].best_cost) << i;
     EXPECT_EQ(a.T_camera_from_world, b.T_camera_from_world);
 
-    // At another fit: without the option no start reaches the best fit; with it one does.
+    // At another fit: the moves start from the local fit LM finds from the given pose (the fit
+    // itself, or further along its valley: LM stops at its iteration limit, and where it stops
+    // differs between builds), so one start is the given pose turned as that local fit turns to
+    // the best fit. Without the option no start is.
     PhotoInput other = f.c.photo;
-    other.initial_pose = fits[1].T_camera_from_world;
-    auto nearest_to_best = [&](const std::vector<Pose>& starts) {
+    const Pose T_given = fits[1].T_camera_from_world;
+    other.initial_pose = T_given;
+    const Pose F_local = refine_landmark_fit(f.c.photo.landmarks, f.c.photo.camera, T_given).T_camera_from_world;
+    const Eigen::Matrix3d R_to_best = fits.front().T_camera_from_world.topLeftCorner<3, 3>() * F_local.topLeftCorner<3, 3>().transpose();
+    auto nearest_to_the_turn = [&](const std::vector<Pose>& starts) {
         double d = 1e300;
-        for (const Pose& S : starts) d = std::min(d, (S - fits.front().T_camera_from_world).norm());
+        for (const Pose& S : starts)
+            d = std::min(d, (S.topLeftCorner<3, 3>() * T_given.topLeftCorner<3, 3>().transpose() - R_to_best).norm());
         return d;
     };
     const RegistrationResult before = from_best.run(other), after = from_nearest.run(other);
+    EXPECT_EQ(before.landmark_moves_from_fit, 0);
     EXPECT_EQ(after.landmark_moves_from_fit, 1);
     EXPECT_EQ(result_to_json(after)["landmark_moves_from_fit"], 1);
-    EXPECT_GT(nearest_to_best(screens(before)), 1e-2);
-    EXPECT_LT(nearest_to_best(screens(after)), 1e-4);
-    // The given pose, and a move to every fit but the one it lies in.
-    EXPECT_EQ(screens(after).size(), fits.size());
+    EXPECT_GT(nearest_to_the_turn(screens(before)), 1e-3);
+    EXPECT_LT(nearest_to_the_turn(screens(after)), 1e-9);
+    // The given pose and a move to every fit (one fewer when the local fit is a listed one).
+    EXPECT_GE(screens(after).size(), fits.size());
+    EXPECT_LE(screens(after).size(), fits.size() + 1);
 }
 
 TEST(Registration, AGivenPoseGetsTheLandmarksOtherFitsAsMovesAndTheirBestFitRegistersAsTheLandmarksDo) {
