@@ -187,8 +187,9 @@ RegistrationParams RegistrationParams::defaults() {
     // Thirty-ninth session: those moves start from the local fit the given pose lies in when that
     // is not the best fit's basin (the protocol misaligns about plain PnP, the engine's best fit
     // can be the planar flip): hb_1751 case 0000 0 -> 10 of 10 protocol runs, rs_1611 case 0002
-    // 0 -> 4; over 1216 paired protocol and wide runs 1137 -> 1154 pass, none lost; from the
-    // landmarks nothing changes (docs/registration.md, "A given pose in another fit's basin").
+    // 0 -> 4; over 1720 paired protocol and wide runs 1608 -> 1624 pass (one lost: seg3d case 0004
+    // wide, 2.90 -> 3.23 mm); from the landmarks nothing changes (docs/registration.md, "A given
+    // pose in another fit's basin").
     p.landmark_moves_from_nearest_fit = true;
     // Nineteenth session: the best of those fits' starts goes on past the FWHM-8 screen when the
     // screen dropped them all (chris case 0003: in five of ten protocol runs the moved start that
