@@ -1255,10 +1255,9 @@ RegistrationResult Registration::run(const PhotoInput& in, const Progress* progr
     std::vector<PoseParams> starts = params_.starts;
     // Each other fit as a move about the pivot from the best one (fits.front()); from the landmarks
     // alone the best fit is T0, and the move takes T0 to that fit exactly. With
-    // landmark_moves_from_nearest_fit, a given pose's moves start from the fit nearest it.
-    // The fit the moves start from: the best, or with landmark_moves_from_nearest_fit the local
-    // fit the given pose lies in when that is another (over 5 deg from the best; the plain PnP
-    // fit where the planar flip fits better, say), whether or not it is among `fits`.
+    // landmark_moves_from_nearest_fit a given pose's moves start instead from the local fit it
+    // lies in when that is another (over 5 deg from the best; the plain PnP fit where the planar
+    // flip fits better, say), whether or not it is among `fits`, and go to every fit.
     Pose F_from = fits.empty() ? Pose(Pose::Identity()) : fits.front().T_camera_from_world;
     if (params_.landmark_moves_from_nearest_fit && in.initial_pose && !fits.empty()) {
         try {
