@@ -59,6 +59,18 @@ RegistrationParams small_params() {
     return p;
 }
 
+/// One start, one screen, one finalist, one light round, no refine: a given pose's starts are
+/// what the screen reports.
+RegistrationParams one_start_params() {
+    RegistrationParams p = small_params();
+    p.starts.resize(1);
+    p.search_stages.resize(1);
+    p.keep_best = 1;
+    p.light_rounds = 1;
+    p.refine_stages.clear();
+    return p;
+}
+
 // The landmarks' model points moved off_mm each, in a direction of its own (turned by turn), as a
 // picking error on the MRI would.
 void move_model_points(std::vector<Landmark>& lms, double off_mm, int turn = 0) {
@@ -289,11 +301,6 @@ TEST(Registration, ScreensEveryStartThenSearchesOnlyTheKeptOnesAndRefinesTheWinn
     EXPECT_THROW(registration_params_from_json(bad, "params"), InputError);
 }
 
-// A given pose (the protocol's misaligned start, or a pose from the last session) had no share of
-// the landmarks' other fits, which are starts from the landmarks alone. With
-// initial_pose_landmark_moves the moves from their best fit to the others are starts for it too:
-// given that best fit itself, the registration is exactly the one from the landmarks alone.
-// Landmarks nearly on a line give none.
 // landmark_moves_from_nearest_fit: a given pose in another fit's basin (the plain PnP fit where
 // the planar flip fits better) gets the moves from that fit, to the best one among them, so one
 // start lands on the best fit. A pose in the best fit's basin registers exactly as without it.
@@ -301,13 +308,8 @@ TEST(Registration, AGivenPoseInAnotherFitsBasinGetsAMoveToTheBestFit) {
     const Fixture& f = fixture();
     const auto fits = pnp_candidates(f.c.photo.landmarks, f.c.photo.camera);
     ASSERT_GE(fits.size(), 2u) << "the test needs landmarks that more than one pose explains";
-    RegistrationParams p = small_params();
-    p.starts.resize(1);
-    p.search_stages.resize(1);
+    RegistrationParams p = one_start_params();
     p.search_stages.front().max_evaluations = 1;  // a screen of one evaluation reports its start
-    p.keep_best = 1;
-    p.light_rounds = 1;
-    p.refine_stages.clear();
     ASSERT_TRUE(p.initial_pose_landmark_moves);
     const std::string screen = p.search_stages.front().name;
     auto screens = [&](const RegistrationResult& r) {
@@ -361,16 +363,16 @@ TEST(Registration, AGivenPoseInAnotherFitsBasinGetsAMoveToTheBestFit) {
     EXPECT_LE(screens(after).size(), fits.size() + 1);
 }
 
+// A given pose (the protocol's misaligned start, or a pose from the last session) had no share of
+// the landmarks' other fits, which are starts from the landmarks alone. With
+// initial_pose_landmark_moves the moves from their best fit to the others are starts for it too:
+// given that best fit itself, the registration is exactly the one from the landmarks alone.
+// Landmarks nearly on a line give none.
 TEST(Registration, AGivenPoseGetsTheLandmarksOtherFitsAsMovesAndTheirBestFitRegistersAsTheLandmarksDo) {
     const Fixture& f = fixture();
     const auto fits = pnp_candidates(f.c.photo.landmarks, f.c.photo.camera);
     ASSERT_GE(fits.size(), 2u) << "the test needs landmarks that more than one pose explains";
-    RegistrationParams p = small_params();
-    p.starts.resize(1);
-    p.search_stages.resize(1);
-    p.keep_best = 1;
-    p.light_rounds = 1;
-    p.refine_stages.clear();
+    RegistrationParams p = one_start_params();
     auto screened = [&](const RegistrationResult& r) {
         int n = 0;
         for (const auto& s : r.stages) n += s.name == p.search_stages.front().name;
