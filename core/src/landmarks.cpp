@@ -8,6 +8,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <optional>
 
 #include "cortexfuse/core/error.hpp"
 
@@ -82,6 +83,25 @@ bool in_front(const std::vector<Landmark>& lms, const Pose& T) {
         if ((T.topLeftCorner<3, 3>() * l.world_mm + T.topRightCorner<3, 1>()).z() <= 0) return false;
     return true;
 }
+
+/// Levenberg-Marquardt over every pair from (rvec, tvec): the fit it reaches, or nullopt when
+/// OpenCV fails, or the pose is not finite or leaves a landmark behind the camera
+/// (pnp_candidates' seeds and refine_landmark_fit()).
+std::optional<LandmarkFit> refined_fit(const PnpProblem& pnp, const std::vector<Landmark>& lms, const Intrinsics& K,
+                                       cv::Mat rvec, cv::Mat tvec, const char* method) {
+    try {
+        cv::solvePnPRefineLM(pnp.obj, pnp.img, pnp.Kcv, pnp.dist, rvec, tvec);
+    } catch (const cv::Exception&) {
+        return std::nullopt;
+    }
+    LandmarkFit f;
+    f.T_camera_from_world = pose_from_rvec(rvec, tvec);
+    if (!f.T_camera_from_world.allFinite() || !in_front(lms, f.T_camera_from_world)) return std::nullopt;
+    f.rms_px = reprojection_rms_px(lms, K, f.T_camera_from_world);
+    f.method = method;
+    for (size_t i = 0; i < lms.size(); ++i) f.inliers.push_back(int(i));
+    return f;
+}
 }  // namespace
 
 LandmarkFit fit_pose_pnp(const std::vector<Landmark>& lms, const Intrinsics& K) {
@@ -125,23 +145,15 @@ LandmarkFit fit_pose_pnp(const std::vector<Landmark>& lms, const Intrinsics& K) 
 }
 
 LandmarkFit refine_landmark_fit(const std::vector<Landmark>& lms, const Intrinsics& K, const Pose& T_start) {
-    const PnpProblem pnp(lms, K);
-    const auto& [obj, img, Kcv, dist] = pnp;
     cv::Mat rvec, tvec;
     try {
         rvec_tvec_from_pose(T_start, rvec, tvec);
-        cv::solvePnPRefineLM(obj, img, Kcv, dist, rvec, tvec);
     } catch (const cv::Exception& e) {
-        throw InputError("landmarks", std::string("refining the fit from the given pose failed: ") + e.what());
+        throw InputError("landmarks", std::string("the given pose is not a rotation OpenCV can take: ") + e.what());
     }
-    LandmarkFit f;
-    f.T_camera_from_world = pose_from_rvec(rvec, tvec);
-    if (!f.T_camera_from_world.allFinite() || !in_front(lms, f.T_camera_from_world))
-        throw InputError("landmarks", "refined from the given pose, the fit puts landmarks behind the camera");
-    f.rms_px = reprojection_rms_px(lms, K, f.T_camera_from_world);
-    f.method = "refined";
-    for (size_t i = 0; i < lms.size(); ++i) f.inliers.push_back(int(i));
-    return f;
+    std::optional<LandmarkFit> f = refined_fit(PnpProblem(lms, K), lms, K, rvec, tvec, "refined");
+    if (!f) throw InputError("landmarks", "refined from the given pose, the fit fails or puts landmarks behind the camera");
+    return *f;
 }
 
 double landmark_px_per_mm(const std::vector<Landmark>& lms, const Intrinsics& K, const Pose& T) {
@@ -156,22 +168,13 @@ std::vector<LandmarkFit> pnp_candidates(const std::vector<Landmark>& lms, const 
     const PnpProblem pnp(lms, K);
     const auto& [obj, img, Kcv, dist] = pnp;
     auto consider = [&](cv::Mat rvec, cv::Mat tvec, const char* method) {
-        try {
-            cv::solvePnPRefineLM(obj, img, Kcv, dist, rvec, tvec);
-        } catch (const cv::Exception&) {
-            return;
-        }
-        LandmarkFit f;
-        f.T_camera_from_world = pose_from_rvec(rvec, tvec);
-        if (!f.T_camera_from_world.allFinite() || !in_front(lms, f.T_camera_from_world)) return;
-        f.rms_px = reprojection_rms_px(lms, K, f.T_camera_from_world);
-        f.method = method;
-        for (size_t i = 0; i < lms.size(); ++i) f.inliers.push_back(int(i));
+        std::optional<LandmarkFit> f = refined_fit(pnp, lms, K, rvec, tvec, method);
+        if (!f) return;
         for (const auto& o : out) {
-            const Eigen::Matrix3d dR = o.T_camera_from_world.topLeftCorner<3, 3>().transpose() * f.T_camera_from_world.topLeftCorner<3, 3>();
+            const Eigen::Matrix3d dR = o.T_camera_from_world.topLeftCorner<3, 3>().transpose() * f->T_camera_from_world.topLeftCorner<3, 3>();
             if (Eigen::AngleAxisd(dR).angle() * 180.0 / M_PI < min_sep_deg) return;
         }
-        out.push_back(f);
+        out.push_back(*f);
     };
     // Other minimisers land in the other basin when it exists.
     for (int flag : {cv::SOLVEPNP_EPNP, cv::SOLVEPNP_ITERATIVE}) {

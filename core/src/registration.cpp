@@ -1262,8 +1262,7 @@ RegistrationResult Registration::run(const PhotoInput& in, const Progress* progr
     if (params_.landmark_moves_from_nearest_fit && in.initial_pose && !fits.empty()) {
         try {
             const Pose near = refine_landmark_fit(in.landmarks, K, T0).T_camera_from_world;
-            const Eigen::Matrix3d dR = near.topLeftCorner<3, 3>().transpose() * F_from.topLeftCorner<3, 3>();
-            if (Eigen::AngleAxisd(dR).angle() * 180.0 / M_PI > 5.0) {
+            if (pose_delta(near, F_from, res.pivot_world_mm).angle_deg > 5.0) {
                 F_from = near;
                 res.landmark_moves_from_fit = 1;
             }
